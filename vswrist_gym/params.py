@@ -115,6 +115,25 @@ class Control:
 
 
 @dataclass(frozen=True)
+class Simulation:
+    """Numerical settings of the MuJoCo model: physics timestep and the loop-closure constraints.
+
+    The three legs are closed onto the coupler by weld constraints; the internal preload (N m per leg)
+    must not pull them apart, so the constraints are made nearly hard (impedance close to 1) with a
+    short time constant. See docs/model.md for the accuracy/speed trade behind the defaults.
+    """
+
+    timestep: float = _p("s", 0.0, 0.01, lo_open=True)
+    constraint_timeconst: float = _p("s", 0.0, 1.0, lo_open=True)
+    constraint_dampratio: float = _p("-", 0.0, 10.0, lo_open=True)
+    constraint_dmin: float = _p("-", 0.0, 1.0, lo_open=True)
+    constraint_dmax: float = _p("-", 0.0, 1.0, lo_open=True)
+    constraint_width: float = _p("m", 0.0, lo_open=True)
+    solver_iterations: float = _p("-", 1.0, 1000.0)
+    solver_tolerance: float = _p("-", 0.0, 1.0)
+
+
+@dataclass(frozen=True)
 class WristParams:
     """The complete parameter set of one VS-Wrist."""
 
@@ -127,6 +146,7 @@ class WristParams:
     damping: Damping
     environment: Environment
     control: Control
+    simulation: Simulation
 
     def replace(self, **sections: Mapping[str, Any]) -> "WristParams":
         """A copy with some entries changed, validated like a file: ``p.replace(spring={"K": 0.01})``."""
@@ -155,6 +175,7 @@ _SECTIONS: dict[str, type] = {
     "damping": Damping,
     "environment": Environment,
     "control": Control,
+    "simulation": Simulation,
 }
 
 

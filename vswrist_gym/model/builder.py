@@ -1,0 +1,262 @@
+"""MuJoCo model of the VS-Wrist, generated from a :class:`~vswrist_gym.params.WristParams`.
+
+Structure (every element named; base frame = world frame, X along the forearm):
+
+* ``base``: the forearm housing (static).
+* ``motor_A/B/C``: one rotor hinge per leg, coaxial with the leg's first joint, carrying the motor's reflected
+  inertia (joint armature). Its angle is the paper's theta. The motors act on the legs **only** through the
+  sinh springs (applied by ``vswrist_gym.model.native`` every substep: +tau on ``legX_q1``, -tau on ``motor_X``).
+* ``legX_link1..3`` + ``legX_q1..q4``: the three legs, four hinges each, following the DH table exactly;
+  joint values equal the DH angles (each joint's ``ref`` is its home angle, so ``qpos0`` is the home pose).
+  The body after ``q4`` has the coupler frame. Leg A's is the ``coupler`` body; legs B and C end in
+  ``legB_end`` / ``legC_end``, welded to the coupler (``close_B``, ``close_C``). Each of the three carries a
+  third of the coupler mass, so the welds join three equal pieces of one ring.
+* ``ps`` (hinge about the coupler X axis) stands for the PS motor's output and its two opposed universal joints;
+  ``hand`` is the paper's 300 g point mass 10 cm along the coupler X axis; ``tool`` is attached at site
+  ``tool_mount``; sensors ``tool_force`` / ``tool_torque`` measure the hand-tool interaction.
+* Actuators ``motor_A/B/C`` (on the rotors) and ``motor_ps`` (on ``ps``): reference = ``ctrl`` (rad), rate-limited
+  first-order low-pass (time constant, speed limit) into the activation, then a PD position loop
+  ``kp (act - q) - kd qdot`` clamped to the torque limit. The low-pass is ``dyntype=user`` (native callback).
+* Tendons ``deflection_A/B/C`` = q1 - theta with the mechanical deflection limit as a tendon limit.
+* Custom numeric ``vswrist_spring`` = (K, delta0, q1 dof adr x3, motor dof adr x3, q1 qpos adr x3, motor qpos adr
+  x3) carries each model's own spring parameters to the process-global callbacks, which ignore any model
+  without it (e.g. Gymnasium's Ant in the same process). ``vswrist_motor`` tags the model for the motor
+  low-pass (its time constant and speed limit are each actuator's ``dynprm[0:2]``).
+* Cameras ``front``, ``side``, ``top``; keyframe ``home``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+from ..kinematics import LEG_NAMES, WristKinematics, rot_x, rot_z
+from ..params import WristParams, load_params
+
+SPRING_TAG = "vswrist_spring"
+MOTOR_TAG = "vswrist_motor"
+SPRING_FIELDS = 14
+LEG_COLORS = ("0.85 0.3 0.25 1", "0.3 0.7 0.35 1", "0.25 0.45 0.85 1")
+LINK_RADIUS_1 = 0.03  # m, radius at which the first link bracket is drawn (visual only)
+
+SceneFn = Callable[[mujoco.MjSpec], None]
+
+
+def _fmt(v) -> str:
+    return " ".join(f"{float(x):.17g}" for x in np.ravel(v))
+
+
+def _quat(R: np.ndarray) -> str:
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).ravel())
+    return _fmt(q)
+
+
+def _camera_axes(pos, target, up=(0.0, 0.0, 1.0)) -> str:
+    f = np.asarray(target, float) - np.asarray(pos, float)
+    f /= np.linalg.norm(f)
+    x = np.cross(f, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(x, f)
+    return _fmt(np.concatenate([x, y]))
+
+
+def model_xml(params: WristParams | str | None = None) -> str:
+    """The MJCF text of the wrist (before the runtime-only fields are filled in by ``build_model``)."""
+    p = load_params(params)
+    kin = WristKinematics(p)
+    q_home = kin.joint_angles(np.zeros(2)).reshape(3, 4)
+    d = p.geometry.d
+    alpha = p.geometry.alpha
+    inr, mot, sim = p.inertia, p.motor, p.simulation
+    solref = f'solref="{sim.constraint_timeconst:.17g} {sim.constraint_dampratio:.17g}"'
+    solimp = f'solimp="{sim.constraint_dmin:.17g} {sim.constraint_dmax:.17g} {sim.constraint_width:.17g} 0.5 2"'
+    gravity = _fmt(p.environment.gravity)
+    m_end = inr.coupler_mass / 3.0
+    i_end = inr.coupler_inertia / 3.0
+
+    legs = []
+    rotors = []
+    for k, (name, eta) in enumerate(zip(LEG_NAMES, p.geometry.eta)):
+        qh = q_home[k]
+        color = LEG_COLORS[k]
+        R_end = rot_x(np.pi - eta)
+        axis_end = R_end.T @ np.array([0.0, 0.0, 1.0])
+        lm, li = inr.link_mass, inr.link_inertia
+        r1 = LINK_RADIUS_1
+        if k == 0:
+            end_name = "coupler"
+            end_inner = f"""
+            <site name="coupler_site" pos="0 0 0" size="0.004" rgba="1 1 1 1"/>
+            <geom name="coupler_ring" type="cylinder" fromto="-0.004 0 0 0.004 0 0" size="0.026" rgba="0.75 0.75 0.78 1"/>
+            <body name="ps" pos="0 0 0">
+              <joint name="ps" type="hinge" axis="1 0 0" damping="{p.damping.ps_joint:.17g}"
+                     armature="{mot.rotor_inertia:.17g}"/>
+              <inertial pos="0.02 0 0" mass="{inr.ps_mass:.17g}" diaginertia="{_fmt([inr.ps_inertia] * 3)}"/>
+              <geom name="ps_flange" type="cylinder" fromto="0.004 0 0 0.03 0 0" size="0.018" rgba="0.6 0.6 0.62 1"/>
+              <geom name="ps_shaft" type="capsule" fromto="0.03 0 0 {inr.hand_offset - 0.02:.17g} 0 0" size="0.008"
+                    rgba="0.6 0.6 0.62 1"/>
+              <body name="hand" pos="{inr.hand_offset:.17g} 0 0">
+                <inertial pos="0 0 0" mass="{inr.hand_mass:.17g}" diaginertia="1e-6 1e-6 1e-6"/>
+                <site name="hand_site" pos="0 0 0" size="0.005" rgba="1 0.8 0.2 1"/>
+                <site name="tool_mount" pos="0 0 0" size="0.004" rgba="0.2 0.8 1 1"/>
+                <geom name="hand_palm" type="box" pos="0 0 0" size="0.022 0.035 0.01" rgba="0.93 0.78 0.65 1"
+                      contype="1" conaffinity="1"/>
+                <geom name="hand_fingers" type="capsule" fromto="0.022 0 0 0.06 0 0" size="0.012"
+                      rgba="0.93 0.78 0.65 1" contype="1" conaffinity="1"/>
+                <body name="tool" pos="0 0 0">
+                  <site name="tool_site" pos="0 0 0" size="0.003"/>
+                </body>
+              </body>
+            </body>"""
+        else:
+            end_name = f"leg{name}_end"
+            end_inner = ""
+        legs.append(f"""
+    <body name="leg{name}_link1" pos="0 0 0" quat="{_quat(rot_x(eta) @ rot_z(qh[0]))}">
+      <joint name="leg{name}_q1" type="hinge" axis="0 0 1" ref="{qh[0]:.17g}"/>
+      <inertial pos="0 {-r1 / 2:.17g} {r1 / 2:.17g}" mass="{lm[0]:.17g}" diaginertia="{_fmt([li[0]] * 3)}"/>
+      <geom name="leg{name}_link1" type="capsule" fromto="0 0 {r1:.17g} 0 {-r1:.17g} 0" size="0.004" rgba="{color}"/>
+      <body name="leg{name}_link2" pos="0 0 0" quat="{_quat(rot_x(np.pi / 2) @ rot_z(qh[1]))}">
+        <joint name="leg{name}_q2" type="hinge" axis="0 0 1" ref="{qh[1]:.17g}"/>
+        <inertial pos="0 0 {(r1 + d) / 2:.17g}" mass="{lm[1]:.17g}" diaginertia="{_fmt([li[1]] * 3)}"/>
+        <geom name="leg{name}_link2" type="capsule" fromto="0 0 {r1:.17g} 0 0 {d:.17g}" size="0.004" rgba="{color}"/>
+        <body name="leg{name}_link3" pos="0 0 {d:.17g}" quat="{_quat(rot_x(-alpha) @ rot_z(qh[2]))}">
+          <joint name="leg{name}_q3" type="hinge" axis="0 0 1" ref="{qh[2]:.17g}"/>
+          <inertial pos="0 0 {-d / 2:.17g}" mass="{lm[2]:.17g}" diaginertia="{_fmt([li[2]] * 3)}"/>
+          <geom name="leg{name}_link3" type="capsule" fromto="0 0 0 0 0 {-d + 0.012:.17g}" size="0.004"
+                rgba="{color}"/>
+          <geom name="leg{name}_elbow" type="sphere" size="0.006" rgba="{color}"/>
+          <body name="{end_name}" pos="0 0 {-d:.17g}" quat="{_quat(rot_x(np.pi / 2) @ rot_z(qh[3]) @ R_end)}">
+            <joint name="leg{name}_q4" type="hinge" axis="{_fmt(axis_end)}" ref="{qh[3]:.17g}"/>
+            <inertial pos="0 0 0" mass="{m_end:.17g}" diaginertia="{_fmt([i_end] * 3)}"/>{end_inner}
+          </body>
+        </body>
+      </body>
+    </body>""")
+        rotors.append(f"""
+    <body name="motor_{name}" pos="0 0 0" quat="{_quat(rot_x(eta) @ rot_z(qh[0]))}">
+      <joint name="motor_{name}" type="hinge" axis="0 0 1" ref="{qh[0]:.17g}" armature="{mot.rotor_inertia:.17g}"/>
+      <inertial pos="0 0 0" mass="0.01" diaginertia="1e-6 1e-6 1e-6"/>
+      <geom name="motor_{name}_rotor" type="cylinder" fromto="0 0 -0.036 0 0 -0.028" size="0.012" rgba="{color}"/>
+      <geom name="motor_{name}_mark" type="box" pos="0.008 0 -0.037" size="0.006 0.002 0.0015" rgba="1 1 1 1"/>
+    </body>""")
+
+    damping = p.damping.leg_joint
+    tl, vmax, tc = mot.torque_limit, mot.speed_limit, mot.time_constant
+
+    def actuator(name: str, joint: str, limit: float) -> str:
+        return (f'<general name="{name}" joint="{joint}" dyntype="user" dynprm="{tc:.17g} {vmax:.17g}" '
+                f'gaintype="fixed" gainprm="{mot.kp:.17g}" biastype="affine" '
+                f'biasprm="0 {-mot.kp:.17g} {-mot.kd:.17g}" forcelimited="true" '
+                f'forcerange="{-limit:.17g} {limit:.17g}"/>')
+
+    actuators = [actuator(f"motor_{n}", f"motor_{n}", tl) for n in LEG_NAMES]
+    actuators.append(actuator("motor_ps", "ps", mot.ps_torque_limit))
+    tendons = [f"""
+    <fixed name="deflection_{n}" limited="true" range="{-p.spring.deflection_limit:.17g} {p.spring.deflection_limit:.17g}"
+           solreflimit="{sim.constraint_timeconst:.17g} {sim.constraint_dampratio:.17g}"
+           solimplimit="{sim.constraint_dmin:.17g} {sim.constraint_dmax:.17g} {sim.constraint_width:.17g} 0.5 2">
+      <joint joint="leg{n}_q1" coef="1"/>
+      <joint joint="motor_{n}" coef="-1"/>
+    </fixed>""" for n in LEG_NAMES]
+    welds = [f'<weld name="close_{n}" body1="coupler" body2="leg{n}_end" relpose="0 0 0 1 0 0 0" {solref} {solimp}/>'
+             for n in LEG_NAMES[1:]]
+    target = (0.045, 0.0, 0.0)
+    cams = {
+        "front": (0.32, -0.22, 0.14),
+        "side": (0.05, -0.38, 0.06),
+        "top": (0.06, -0.01, 0.40),
+    }
+    cameras = "\n    ".join(
+        f'<camera name="{n}" pos="{_fmt(pos)}" xyaxes="{_camera_axes(pos, target, (0, 1, 0) if n == "top" else (0, 0, 1))}"'
+        f' fovy="45"/>' for n, pos in cams.items())
+    spring_data = _fmt([p.spring.K, p.spring.delta0] + [-1.0] * (SPRING_FIELDS - 2))
+
+    return f"""<mujoco model="vswrist_{p.name.replace('*', '_mod')}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{sim.timestep:.17g}" integrator="implicitfast" gravity="{gravity}" solver="Newton"
+          iterations="{int(sim.solver_iterations)}" tolerance="{sim.solver_tolerance:.17g}" jacobian="dense"/>
+  <size nuserdata="0"/>
+  <custom>
+    <numeric name="{SPRING_TAG}" data="{spring_data}"/>
+    <numeric name="{MOTOR_TAG}" data="1"/>
+  </custom>
+  <visual>
+    <global offwidth="1280" offheight="960"/>
+    <headlight ambient="0.35 0.35 0.35" diffuse="0.6 0.6 0.6"/>
+  </visual>
+  <default>
+    <geom contype="0" conaffinity="0" group="1"/>
+    <joint damping="{damping:.17g}"/>
+  </default>
+  <worldbody>
+    <light name="key" pos="0.2 -0.3 0.5" dir="-0.3 0.5 -1" diffuse="0.6 0.6 0.6"/>
+    {cameras}
+    <body name="base">
+      <site name="base_site" pos="0 0 0" size="0.004"/>
+      <geom name="forearm" type="cylinder" fromto="-0.13 0 0 -0.04 0 0" size="0.035" rgba="0.3 0.3 0.33 1"/>
+      <geom name="forearm_cap" type="cylinder" fromto="-0.04 0 0 -0.036 0 0" size="0.03" rgba="0.45 0.45 0.48 1"/>
+    </body>{''.join(rotors)}{''.join(legs)}
+  </worldbody>
+  <tendon>{''.join(tendons)}
+  </tendon>
+  <equality>
+    {chr(10).join('    ' + w for w in welds).strip()}
+  </equality>
+  <actuator>
+    {chr(10).join('    ' + a for a in actuators).strip()}
+  </actuator>
+  <sensor>
+    <force name="tool_force" site="tool_site"/>
+    <torque name="tool_torque" site="tool_site"/>
+  </sensor>
+</mujoco>
+"""
+
+
+def build_spec(params: WristParams | str | None = None, scene_fn: SceneFn | None = None) -> mujoco.MjSpec:
+    """An editable MjSpec of the wrist; ``scene_fn(spec)`` may add task bodies/geoms (world or ``tool`` body)."""
+    p = load_params(params)
+    spec = mujoco.MjSpec.from_string(model_xml(p))
+    if scene_fn is not None:
+        scene_fn(spec)
+    return spec
+
+
+def _fill_runtime_fields(m: mujoco.MjModel, p: WristParams) -> None:
+    """Write the joint addresses the native callbacks need into the model's ``vswrist_spring`` field."""
+    adr = m.numeric_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, SPRING_TAG)]
+    ids_link = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"leg{n}_q1") for n in LEG_NAMES]
+    ids_motor = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"motor_{n}") for n in LEG_NAMES]
+    data = [p.spring.K, p.spring.delta0]
+    data += [m.jnt_dofadr[j] for j in ids_link] + [m.jnt_dofadr[j] for j in ids_motor]
+    data += [m.jnt_qposadr[j] for j in ids_link] + [m.jnt_qposadr[j] for j in ids_motor]
+    m.numeric_data[adr:adr + SPRING_FIELDS] = data
+
+
+def home_motor_angles(params: WristParams | str | None = None) -> np.ndarray:
+    """Motor angles (4,) at home with no preload: q1 of each leg, PS = 0."""
+    kin = WristKinematics(params)
+    return np.append(kin.joint_angles(np.zeros(2))[0::4], 0.0)
+
+
+def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | None = None) -> mujoco.MjModel:
+    """Compile the wrist (plus whatever ``scene_fn`` adds) with its ``home`` keyframe and callback fields."""
+    p = load_params(params)
+    spec = build_spec(p, scene_fn)
+    theta = home_motor_angles(p)
+    ctrl = np.zeros(len(spec.actuators))
+    ctrl[:4] = theta
+    n_act_states = 4 + sum(a.dyntype != mujoco.mjtDyn.mjDYN_NONE for a in spec.actuators[4:])
+    act = np.zeros(n_act_states)
+    act[:4] = theta
+    key = spec.add_key()
+    key.name = "home"
+    key.ctrl = ctrl
+    key.act = act
+    m = spec.compile()
+    _fill_runtime_fields(m, p)
+    return m

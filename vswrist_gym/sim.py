@@ -1,0 +1,267 @@
+"""The VS-Wrist simulator: the MuJoCo model of ``vswrist_gym.model`` with springs and motor dynamics.
+
+Quick reference (angles rad, torques N m, forces N, base frame = MuJoCo world frame, X along the forearm)::
+
+    sim = WristSim(params=None, scene_fn=None)   # sim.model / sim.data are the MuJoCo objects
+    sim.reset(u=(0.0, 0.0), ps=0.0, lam=0.0)     # closed chain at posture u, springs preloaded by lam, at rest
+    sim.set_motor_references(theta)              # (4,): PM motors A, B, C + PS motor
+    sim.step(duration_s)                         # a whole number of physics substeps (sim.timestep)
+    sim.posture() -> (3,)                        # measured RUD, FE of the coupler, PS
+    sim.posture_rate() -> (3,)
+    sim.apply_wrench(force, torque)              # on the hand, held until changed (or reset)
+    sim.spring_torques(), sim.deflections()      # (3,) each
+    sim.motor_angles(), sim.motor_velocities(), sim.motor_torques()   # (4,) each
+    sim.tool_wrench() -> (6,)                    # force, torque the hand exerts on the tool, base frame
+    sim.loop_closure_error() -> float            # largest weld violation (m or rad)
+    s = sim.get_state(); sim.set_state(s)        # exact restart
+
+The springs and the motors' low-pass act inside every physics substep (``model.native`` callbacks), so
+``step`` is one ``mj_step(m, d, n)`` call. Quantities derived from positions (body poses, sensors, actuator
+forces) are recomputed lazily with one ``mj_forward`` the first time an accessor needs them after ``step``;
+sensors are evaluated only then (they are disabled inside the substeps to save time).
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from .kinematics import LEG_NAMES, RangeOfMotionError, WristKinematics
+from .model import native
+from .model.builder import SceneFn, build_model
+from .params import WristParams, load_params
+from .stiffness import lambda_range, motor_references
+
+__all__ = ["WristSim", "SimulationError", "RangeOfMotionError"]
+
+_SENSOR_FLAG = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+_BODY = mujoco.mjtObj.mjOBJ_BODY
+_JOINT = mujoco.mjtObj.mjOBJ_JOINT
+
+
+class SimulationError(RuntimeError):
+    """The physics diverged (MuJoCo reported bad accelerations and reset the state) or produced NaN."""
+
+
+class WristSim:
+    """MuJoCo simulation of one VS-Wrist built from one parameter set.
+
+    ``scene_fn(spec)`` may add task bodies and geoms (world or the ``tool`` body) before compilation.
+    """
+
+    def __init__(self, params: WristParams | str | None = None, scene_fn: SceneFn | None = None):
+        self.params = load_params(params)
+        self.kin = WristKinematics(self.params)
+        self.backend = native.install()
+        self.model = build_model(self.params, scene_fn)
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self.timestep = float(m.opt.timestep)
+        jid = lambda name: mujoco.mj_name2id(m, _JOINT, name)  # noqa: E731
+        leg_joints = [jid(f"leg{n}_q{i}") for n in LEG_NAMES for i in range(1, 5)]
+        motor_joints = [jid(f"motor_{n}") for n in LEG_NAMES] + [jid("ps")]
+        self._qadr_legs = m.jnt_qposadr[leg_joints].copy()
+        self._qadr_q1 = self._qadr_legs[0::4].copy()
+        self._qadr_motor = m.jnt_qposadr[motor_joints].copy()
+        self._vadr_motor = m.jnt_dofadr[motor_joints].copy()
+        self._qadr_ps = int(m.jnt_qposadr[jid("ps")])
+        self._vadr_ps = int(m.jnt_dofadr[jid("ps")])
+        self._act_ids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"motor_{n}")
+                                  for n in ("A", "B", "C", "ps")])
+        self._act_adr = m.actuator_actadr[self._act_ids].copy()
+        self.coupler_id = mujoco.mj_name2id(m, _BODY, "coupler")
+        self.hand_id = mujoco.mj_name2id(m, _BODY, "hand")
+        self.tool_id = mujoco.mj_name2id(m, _BODY, "tool")
+        self._end_ids = [mujoco.mj_name2id(m, _BODY, f"leg{n}_end") for n in LEG_NAMES[1:]]
+        self._tool_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tool_site")
+        sens = lambda name: int(m.sensor_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)])  # noqa: E731
+        self._force_adr, self._torque_adr = sens("tool_force"), sens("tool_torque")
+        self._K, self._delta0 = self.params.spring.K, self.params.spring.delta0
+        rom = self.params.range_of_motion
+        self._ps_range = (rom.ps_min, rom.ps_max)
+        self._badqacc = int(mujoco.mjtWarning.mjWARN_BADQACC)
+        m.opt.disableflags |= _SENSOR_FLAG
+        self._stale = True
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def reset(self, u=(0.0, 0.0), ps: float = 0.0, lam: float = 0.0) -> None:
+        """Closed chain at posture u = (RUD, FE), PS angle ps, internal torque lam (N m), at rest.
+
+        The motors stand at ``stiffness.motor_references(u, lam)`` (references and filter states too), so the
+        springs carry exactly lam N; the applied wrench is cleared. Gravity, if on, acts from here on.
+        """
+        u = self.kin.check_posture(np.asarray(u, dtype=float))
+        ps = float(ps)
+        if not (self._ps_range[0] <= ps <= self._ps_range[1]):
+            raise RangeOfMotionError(f"ps = {ps:.4f} rad is outside the range of motion "
+                                     f"[{self._ps_range[0]:.4f}, {self._ps_range[1]:.4f}] rad")
+        lo, hi = lambda_range(u, self.params)
+        lam = float(lam)
+        if not (lo - 1e-9 <= lam <= hi + 1e-9):
+            raise ValueError(f"lam = {lam:.6g} N m is outside the range the motor torque and deflection limits "
+                             f"allow at u = {u}: [{lo:.6g}, {hi:.6g}] N m")
+        m, d = self.model, self.data
+        mujoco.mj_resetDataKeyframe(m, d, 0)
+        theta = np.append(motor_references(u, lam, self.params), ps)
+        d.qpos[self._qadr_legs] = self.kin.joint_angles(u)
+        d.qpos[self._qadr_motor] = theta
+        d.ctrl[self._act_ids] = theta
+        d.act[self._act_adr] = theta
+        self._forward()
+
+    def get_state(self) -> np.ndarray:
+        """Everything needed for an exact restart (MuJoCo's integration state: time, qpos, qvel, act,
+        warm start, ctrl, applied forces...)."""
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        state = np.empty(mujoco.mj_stateSize(self.model, spec))
+        mujoco.mj_getState(self.model, self.data, state, spec)
+        return state
+
+    def set_state(self, state: np.ndarray) -> None:
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        state = np.asarray(state, dtype=float)
+        size = mujoco.mj_stateSize(self.model, spec)
+        if state.shape != (size,):
+            raise ValueError(f"state must have shape ({size},) as returned by get_state(), got {state.shape}")
+        mujoco.mj_setState(self.model, self.data, state, spec)
+        self._forward()
+
+    # ---------------------------------------------------------------- actions
+    def set_motor_references(self, theta) -> None:
+        """Motor references (4,), rad: PM motors A, B, C (the paper's theta) and the PS motor."""
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (4,) or not np.all(np.isfinite(theta)):
+            raise ValueError(f"motor references must be 4 finite angles in rad (A, B, C, PS), got {theta!r}")
+        self.data.ctrl[self._act_ids] = theta
+
+    def apply_wrench(self, force=(0.0, 0.0, 0.0), torque=(0.0, 0.0, 0.0)) -> None:
+        """External force (N) and torque (N m) on the hand at its centre, base frame, held until changed."""
+        w = np.concatenate([np.asarray(force, dtype=float).ravel(), np.asarray(torque, dtype=float).ravel()])
+        if w.shape != (6,) or not np.all(np.isfinite(w)):
+            raise ValueError(f"force and torque must be finite 3-vectors (N, N m), got {force!r}, {torque!r}")
+        self.data.xfrc_applied[self.hand_id] = w
+
+    def step(self, duration_s: float) -> None:
+        """Advance the physics by ``duration_s`` (a whole number of substeps of ``self.timestep``)."""
+        n = int(round(duration_s / self.timestep))
+        if n < 1 or abs(n * self.timestep - duration_s) > 1e-9 * max(1.0, duration_s):
+            raise ValueError(f"duration_s = {duration_s!r} s must be a positive multiple of the timestep "
+                             f"{self.timestep} s")
+        d = self.data
+        mujoco.mj_step(self.model, d, n)
+        self._stale = True
+        if d.warning[self._badqacc].number:
+            raise SimulationError(f"MuJoCo reported unstable accelerations at t = {d.time:.4f} s "
+                                  f"(and reset the state); the timestep or constraint settings are too coarse")
+
+    # -------------------------------------------------------------- measures
+    def _forward(self) -> None:
+        m = self.model
+        m.opt.disableflags &= ~_SENSOR_FLAG
+        mujoco.mj_forward(m, self.data)
+        m.opt.disableflags |= _SENSOR_FLAG
+        self._stale = False
+
+    def _sync(self) -> None:
+        if self._stale:
+            self._forward()
+
+    def posture(self) -> np.ndarray:
+        """Measured (RUD, FE, PS), rad: ZYX Euler angles alpha_y, alpha_z of the coupler, and the PS joint."""
+        self._sync()
+        R = self.data.xmat[self.coupler_id]
+        ay = math.asin(max(-1.0, min(1.0, -R[6])))
+        az = math.atan2(R[3], R[0])
+        return np.array([ay, az, self.data.qpos[self._qadr_ps]])
+
+    def posture_rate(self) -> np.ndarray:
+        """Time derivative of ``posture()`` (rad/s), from the coupler's angular velocity."""
+        self._sync()
+        d = self.data
+        wx, wy, wz = d.cvel[self.coupler_id, :3]
+        R = d.xmat[self.coupler_id]
+        ay = math.asin(max(-1.0, min(1.0, -R[6])))
+        az = math.atan2(R[3], R[0])
+        sz, cz = math.sin(az), math.cos(az)
+        ax_rate = (cz * wx + sz * wy) / math.cos(ay)
+        return np.array([-sz * wx + cz * wy, wz + math.sin(ay) * ax_rate, d.qvel[self._vadr_ps]])
+
+    def deflections(self) -> np.ndarray:
+        """Spring deflections delta = q1 - theta (3,), rad."""
+        q = self.data.qpos
+        return q[self._qadr_q1] - q[self._qadr_motor[:3]]
+
+    def spring_torques(self) -> np.ndarray:
+        """Spring torques on the legs' first joints tau_s = -2K sinh(delta/delta0) (3,), N m."""
+        return -2.0 * self._K * np.sinh(self.deflections() / self._delta0)
+
+    def motor_angles(self) -> np.ndarray:
+        """Motor angles (4,), rad: rotors A, B, C (theta) and the PS joint."""
+        return self.data.qpos[self._qadr_motor].copy()
+
+    def motor_velocities(self) -> np.ndarray:
+        return self.data.qvel[self._vadr_motor].copy()
+
+    def motor_references(self) -> np.ndarray:
+        """The references last set (4,), rad."""
+        return self.data.ctrl[self._act_ids].copy()
+
+    def motor_filter_states(self) -> np.ndarray:
+        """The low-pass filtered references the position loops track (4,), rad."""
+        return self.data.act[self._act_adr].copy()
+
+    def motor_torques(self) -> np.ndarray:
+        """Motor torques (4,), N m (after the torque limit)."""
+        self._sync()
+        return self.data.actuator_force[self._act_ids].copy()
+
+    def joint_angles(self) -> np.ndarray:
+        """The 12 leg joint angles [q_A, q_B, q_C] (DH convention, as ``WristKinematics.joint_angles``)."""
+        return self.data.qpos[self._qadr_legs].copy()
+
+    def coupler_pose(self) -> np.ndarray:
+        """Coupler frame T_b^c (4x4)."""
+        self._sync()
+        T = np.eye(4)
+        T[:3, :3] = self.data.xmat[self.coupler_id].reshape(3, 3)
+        T[:3, 3] = self.data.xpos[self.coupler_id]
+        return T
+
+    def hand_position(self) -> np.ndarray:
+        self._sync()
+        return self.data.xpos[self.hand_id].copy()
+
+    def tool_wrench(self) -> np.ndarray:
+        """(force N, torque N m) (6,) that the hand exerts on the tool (and whatever is attached to it),
+        base frame, torque about the tool mount. Zero with nothing attached."""
+        self._sync()
+        d = self.data
+        R = d.site_xmat[self._tool_site].reshape(3, 3)
+        f = d.sensordata[self._force_adr:self._force_adr + 3]
+        t = d.sensordata[self._torque_adr:self._torque_adr + 3]
+        return np.concatenate([R @ f, R @ t])
+
+    def loop_closure_error(self) -> float:
+        """Largest violation of the loop-closure welds: position (m) or rotation angle (rad), whichever is larger."""
+        self._sync()
+        d = self.data
+        c = self.coupler_id
+        worst = 0.0
+        qc = d.xquat[c]
+        for e in self._end_ids:
+            worst = max(worst, float(np.linalg.norm(d.xpos[e] - d.xpos[c])))
+            qe = d.xquat[e]
+            dot = abs(float(qc @ qe))
+            worst = max(worst, 2.0 * math.acos(min(1.0, dot)))
+        return worst
+
+    def warnings(self) -> dict[str, int]:
+        """MuJoCo warnings raised so far (name -> count); empty when all is well."""
+        return {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(self.data.warning) if w.number}
