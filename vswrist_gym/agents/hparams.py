@@ -26,7 +26,7 @@ RUN_KEYS = {
     "policy": "stable-baselines3 policy class name (MlpPolicy)",
     "normalize": "false, true, or a mapping of VecNormalize options (norm_obs, norm_reward, clip_obs, clip_reward)",
     "env_kwargs": "mapping passed to gymnasium.make",
-    "eval_freq": "environment steps between periodic evaluations (int > 0)",
+    "eval_freq": "environment steps between periodic evaluations (int > 0; at most half the run)",
     "n_eval_episodes": "episodes per periodic evaluation (int > 0)",
     "checkpoint_freq": "environment steps between checkpoints (int > 0)",
     "keep_checkpoints": "how many of the newest checkpoints to keep on disk (int > 0)",

@@ -79,8 +79,9 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
 
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False,
                                 **{k: v for k, v in cfg.normalize.items() if k not in ("norm_reward",)})
+    every = min(cfg.eval_freq, max(cfg.n_timesteps // 2, 1))  # a short run still gets a learning curve
     evaluator = HistoryEvalCallback(eval_env, n_eval_episodes=cfg.n_eval_episodes,
-                                    eval_freq=max(cfg.eval_freq // n_envs, 1),
+                                    eval_freq=max(every // n_envs, 1),
                                     log_path=str(run_dir / "eval"), best_model_save_path=str(run_dir / "eval"),
                                     deterministic=True, verbose=0)
     return [evaluator, AtomicCheckpointCallback(cfg.checkpoint_freq, cfg.keep_checkpoints)], eval_env

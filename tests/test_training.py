@@ -1,0 +1,283 @@
+"""Training, evaluation and comparison: hyperparameter files, statistics, checkpoints, and the three commands
+run end to end as subprocesses with tiny budgets, as a user calls them."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from vswrist_gym.agents import hparams, protocol, runs
+
+PIPELINE_TASK = "Pendulum-v1"  # a standard Gymnasium task: tests the pipeline independently of the VSWrist envs
+
+
+def vswrist(*args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
+    """Run `vswrist ...` as a user would (a fresh interpreter, through the CLI entry point)."""
+    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run([sys.executable, "-m", "vswrist_gym.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=timeout, env=env)
+
+
+def _registered_vswrist() -> list[str]:
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    return sorted(k for k in gym.registry if k.startswith("VSWrist/"))
+
+
+# ------------------------------------------------------------------------------------------- hyperparameter files
+
+
+def _entries():
+    for algo in hparams.ALGO_NAMES:
+        for env_id in hparams.load_file(hparams.default_config_path(algo)):
+            yield algo, env_id
+
+
+def _same(actual, expected) -> bool:
+    if callable(actual) and not isinstance(expected, str):
+        actual = actual(1.0)  # SB3 turns numbers into constant schedules; value at the start of training
+    if hasattr(actual, "frequency"):  # TrainFreq(frequency, unit)
+        actual = actual.frequency
+    if isinstance(expected, str) and expected.startswith("lin_"):
+        return math.isclose(actual(1.0), float(expected[4:])) and actual(0.0) == 0.0
+    if isinstance(expected, float) or isinstance(actual, float):
+        return math.isclose(float(actual), float(expected))
+    return actual == expected
+
+
+@pytest.mark.parametrize("algo,env_id", list(_entries()))
+def test_every_hyperparameter_key_is_used(algo, env_id):
+    """Each key of each entry either configures the run or ends up, with its value, in the constructed model."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    raw = hparams.load_file(hparams.default_config_path(algo))[env_id]
+    cfg = hparams.load_config(algo, env_id)
+    run_keys = set(raw) & set(hparams.RUN_KEYS)
+    algo_keys = set(raw) - run_keys
+    assert set(cfg.algo_kwargs) == algo_keys
+    venv = DummyVecEnv([runs.EnvFactory(env_id, cfg.env_kwargs)])
+    try:
+        model = hparams.algo_class(algo)(cfg.policy, runs.wrap_normalize(venv, cfg), policy_kwargs=cfg.policy_kwargs or None,
+                                         device="cpu", **cfg.algo_kwargs)
+        for key in algo_keys:
+            assert _same(getattr(model, key), raw[key]), f"{algo} {env_id}: {key}"
+        # run keys: values reach the resolved config unchanged (they are consumed by train(), tested end to end below)
+        for key in run_keys - {"normalize", "policy_kwargs"}:
+            assert getattr(cfg, key) == raw[key], key
+        if "normalize" in raw:
+            assert (cfg.normalize is not None) == bool(raw["normalize"])
+            assert (model.get_vec_normalize_env() is not None) == bool(raw["normalize"])
+        if "net_arch" in (raw.get("policy_kwargs") or {}):
+            layers = [m.out_features for m in model.policy.modules() if m.__class__.__name__ == "Linear"]
+            arch = raw["policy_kwargs"]["net_arch"]
+            hidden = arch if isinstance(arch, list) else arch.get("pi", [])
+            assert all(h in layers for h in hidden)
+    finally:
+        venv.close()
+
+
+def test_every_vswrist_task_has_ppo_and_sac_entries():
+    ids = _registered_vswrist()
+    if not ids:
+        pytest.skip("no VSWrist environments registered yet")
+    for algo in hparams.ALGO_NAMES:
+        entries = hparams.load_file(hparams.default_config_path(algo))
+        assert set(ids) <= set(entries), f"{algo}.yaml lacks {sorted(set(ids) - set(entries))}"
+
+
+def test_unknown_and_bad_keys_are_named():
+    entry = {"n_timesteps": 100, "n_step": 64}
+    with pytest.raises(hparams.ConfigError, match="n_step"):
+        hparams.resolve_entry("ppo", "Pendulum-v1", entry)
+    with pytest.raises(hparams.ConfigError, match="n_envs"):
+        hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 100, "n_envs": 0})
+    with pytest.raises(hparams.ConfigError, match="activation_fn"):
+        hparams.resolve_entry("sac", "Pendulum-v1", {"n_timesteps": 100, "policy_kwargs": {"activation_fn": "nn.Tanh"}})
+    with pytest.raises(hparams.ConfigError, match="algo"):
+        hparams.resolve_entry("td3", "Pendulum-v1", {"n_timesteps": 100})
+
+
+def test_linear_schedule_is_parsed_not_evaluated():
+    cfg = hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 10, "learning_rate": "lin_3e-4"})
+    lr = cfg.algo_kwargs["learning_rate"]
+    assert lr(1.0) == pytest.approx(3e-4) and lr(0.5) == pytest.approx(1.5e-4)
+    with pytest.raises(hparams.ConfigError, match="lin_"):
+        hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 10, "learning_rate": "lin___import__('os')"})
+
+
+# ------------------------------------------------------------------------------------------- statistics
+
+
+@pytest.mark.parametrize("df,expected", [(1, 12.706), (2, 4.303), (4, 2.776), (9, 2.262), (29, 2.045)])
+def test_t_quantile_matches_printed_tables(df, expected):
+    """Two-sided 95 % critical values from any Student-t table."""
+    assert protocol.t_quantile(0.975, df) == pytest.approx(expected, abs=1e-3)
+
+
+def test_t_quantile_tends_to_normal():
+    assert protocol.t_quantile(0.975, 100000) == pytest.approx(1.95996, abs=1e-3)
+
+
+def test_mean_ci_by_hand():
+    ci = protocol.mean_ci([1.0, 2.0, 3.0])  # s = 1, half width = t(0.975, 2) / sqrt(3)
+    assert ci["mean"] == 2.0
+    assert ci["high"] - 2.0 == pytest.approx(4.3027 / math.sqrt(3), rel=1e-4)
+    single = protocol.mean_ci([5.0])
+    assert single["mean"] == 5.0 and math.isnan(single["low"])
+
+
+def test_protocol_seeds_are_shared_and_distinct():
+    seeds = {protocol.reset_seed(s, i) for s in range(5) for i in range(20)}
+    assert len(seeds) == 100 and min(seeds) >= protocol.EVAL_SEED_BASE
+
+
+# ------------------------------------------------------------------------------------------- checkpoints
+
+
+def test_interrupted_checkpoint_never_becomes_latest(tmp_path, monkeypatch):
+    """A failure while writing a checkpoint leaves the previous one as latest, loadable, and no partial folder."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    venv = DummyVecEnv([runs.EnvFactory("Pendulum-v1", {})])
+    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=32, n_epochs=1, device="cpu")
+    model.learn(64)
+    first = runs.save_checkpoint(tmp_path, model, None)
+    model.learn(64, reset_num_timesteps=False)
+
+    def broken(_model):
+        raise OSError("disk full (simulated)")
+
+    monkeypatch.setattr(runs, "model_bytes", broken)
+    with pytest.raises(OSError):
+        runs.save_checkpoint(tmp_path, model, None)
+    assert runs.latest_checkpoint(tmp_path) == first
+    assert [p.name for p in (tmp_path / "checkpoints").iterdir() if p.is_dir()] == [first.name]
+    monkeypatch.undo()
+    loaded = runs.load_model(first / "model.zip", "ppo")
+    assert loaded.num_timesteps == 64
+    # a truncated latest.json falls back to the newest complete checkpoint
+    (tmp_path / "checkpoints" / "latest.json").write_text('{"step": 12')
+    assert runs.latest_checkpoint(tmp_path) == first
+    venv.close()
+
+
+def test_corrupted_model_file_is_a_clear_error(tmp_path):
+    bad = tmp_path / "model.zip"
+    bad.write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(runs.RunDirError, match="corrupted"):
+        runs.load_model(bad, "ppo")
+    with pytest.raises(runs.RunDirError, match="not found"):
+        runs.load_model(tmp_path / "missing.zip", "sac")
+
+
+# ------------------------------------------------------------------------------------------- end to end
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    """`vswrist train` with a tiny budget, 2 SubprocVecEnv workers and VecNormalize (as in configs/ppo.yaml)."""
+    out = tmp_path_factory.mktemp("train") / "ppo_run"
+    res = vswrist("train", "--task", PIPELINE_TASK, "--algo", "ppo", "--timesteps", "2048", "--seed", "3",
+                  "--n-envs", "2", "--out", out)
+    assert res.returncode == 0, res.stderr
+    return out
+
+
+def test_train_writes_a_self_describing_run_dir(trained_run):
+    for name in ("config.yaml", "run.json", "model.zip", "vecnormalize.pkl", "checkpoints/latest.json",
+                 "eval/evaluations.npz"):
+        assert (trained_run / name).exists(), name
+    doc = json.loads((trained_run / "run.json").read_text())
+    assert doc["seed"] == 3 and doc["status"] == "finished" and doc["num_timesteps"] >= 2048
+    assert set(doc["versions"]) >= {"mujoco", "gymnasium", "stable_baselines3", "torch"}
+    assert "--timesteps 2048" in doc["commands"][0]
+    cfg = yaml.safe_load((trained_run / "config.yaml").read_text())
+    assert cfg["env_id"] == PIPELINE_TASK and cfg["hyperparameters"]["n_timesteps"] == 2048
+    assert cfg["hyperparameters"]["n_envs"] == 2
+    assert list((trained_run / "tb").iterdir()), "no TensorBoard log"
+    assert len(list((trained_run / "monitor").glob("*.monitor.csv"))) == 2  # one per SubprocVecEnv worker
+    with np.load(trained_run / "eval" / "evaluations.npz") as ev:
+        assert len(ev["timesteps"]) >= 1
+
+
+def test_evaluate_a_run_dir_later_and_resume(trained_run, tmp_path):
+    out = tmp_path / "eval"
+    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", trained_run, "--episodes", "2", "--seeds", "0", "1",
+                  "--out", out)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads((out / "metrics.json").read_text())
+    assert len(doc["episodes"]) == 4 and doc["training_seed"] == 3
+    rows = (out / "metrics.csv").read_text().strip().splitlines()
+    assert len(rows) == 5 and "return" in rows[0]
+    # the same episodes under the same protocol give the same numbers (deterministic policy, seeded resets)
+    res2 = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", trained_run, "--episodes", "2", "--seeds", "0", "1",
+                   "--out", tmp_path / "eval2")
+    assert res2.returncode == 0, res2.stderr
+    again = json.loads((tmp_path / "eval2" / "metrics.json").read_text())
+    assert [e["return"] for e in again["episodes"]] == [e["return"] for e in doc["episodes"]]
+    # per-seed mean and CI recomputed from the CSV rows: an independent path through the numbers
+    returns = [float(r.split(",")[4]) for r in rows[1:]]
+    per_seed = [np.mean(returns[:2]), np.mean(returns[2:])]
+    assert doc["summary"]["return"]["mean"] == pytest.approx(np.mean(per_seed))
+
+
+def test_resume_continues_from_the_last_checkpoint(trained_run, tmp_path):
+    import shutil
+
+    run = tmp_path / "resumed"
+    shutil.copytree(trained_run, run)
+    res = vswrist("train", "--task", PIPELINE_TASK, "--algo", "ppo", "--timesteps", "4096", "--out", run, "--resume",
+                  "--no-progress")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads((run / "run.json").read_text())
+    assert doc["num_timesteps"] >= 4096 and len(doc["commands"]) == 2 and doc["seed"] == 3
+    with np.load(run / "eval" / "evaluations.npz") as ev:
+        assert ev["timesteps"][0] <= 2048 < ev["timesteps"][-1]  # history kept across the resume
+
+
+def test_missing_or_corrupted_model_gives_a_clear_error(trained_run, tmp_path):
+    import shutil
+
+    run = tmp_path / "broken"
+    shutil.copytree(trained_run, run)
+    (run / "model.zip").write_bytes(b"\x00" * 100)
+    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", run, "--episodes", "1", "--seeds", "0",
+                  "--out", tmp_path / "e")
+    assert res.returncode == 2 and "corrupted" in res.stderr and "Traceback" not in res.stderr
+    (run / "model.zip").unlink()
+    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", run, "--episodes", "1", "--seeds", "0",
+                  "--out", tmp_path / "e")
+    assert res.returncode == 2 and "not found" in res.stderr and "Traceback" not in res.stderr
+    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", tmp_path / "nowhere", "--episodes", "1",
+                  "--out", tmp_path / "e")
+    assert res.returncode == 2 and "not found" in res.stderr and "Traceback" not in res.stderr
+    res = vswrist("train", "--task", PIPELINE_TASK, "--algo", "ppo", "--out", trained_run)
+    assert res.returncode == 2 and "--resume" in res.stderr
+
+
+def test_compare_end_to_end(tmp_path):
+    args = ["compare", "--task", PIPELINE_TASK, "--seeds", "0", "1", "--episodes", "1", "--ppo-timesteps", "512",
+            "--sac-timesteps", "200", "--out", tmp_path / "cmp", "--no-progress", "--n-envs", "1"]
+    if PIPELINE_TASK.startswith("Pendulum"):
+        args.append("--no-analytic")
+    res = vswrist(*args)
+    assert res.returncode == 0, res.stderr
+    assert "95 %" in res.stdout and "| PPO |" in res.stdout and "| SAC |" in res.stdout
+    for name in ("table.md", "summary.json", "learning_curves.png", "traces.png"):
+        assert (tmp_path / "cmp" / name).stat().st_size > 0, name
+    summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
+    assert summary["rows"]["PPO"]["return"]["n"] == 2
+    # a second call loads the trained runs instead of training again
+    res = vswrist(*args)
+    assert res.returncode == 0 and "loaded" in res.stdout

@@ -1,0 +1,304 @@
+"""`vswrist compare`: train (or load) PPO and SAC, evaluate them and the analytic baseline at fixed stiffness levels
+under the same seeds, print a table of means with 95 % confidence intervals over seeds, and write plots.
+
+Seeds: the learned agents are trained once per seed (training seed s) and evaluated on the evaluation episodes of
+seed s; the analytic baseline is evaluated on the same episodes. The confidence interval is over seeds (for the
+learned agents it therefore covers training variability as well as task randomisation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config
+from vswrist_gym.agents.protocol import METRICS, _clean, evaluate, summarise, write_metrics
+from vswrist_gym.agents.runs import RunDirError, TrainedAgent, read_config, versions
+
+DEFAULT_STIFFNESS_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)
+TABLE_METRICS = ("return", "success", "rms_posture_error", "peak_contact_force", "rms_contact_force",
+                 "elastic_energy", "stiffness_used")
+
+
+def _short(env_id: str) -> str:
+    return env_id.split("/")[-1].rsplit("-v", 1)[0]
+
+
+def ensure_trained(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | None, config, n_envs,
+                   retrain: bool, progress: bool, log) -> tuple[Path, str]:
+    """Train, resume or load the run for one (algo, seed); returns the run dir and what was done."""
+    from vswrist_gym.agents.train import train
+
+    if retrain and run_dir.exists():
+        shutil.rmtree(run_dir)
+    wanted = timesteps or load_config(algo, env_id, config).n_timesteps
+    if (run_dir / "config.yaml").exists():
+        cfg, old_seed = read_config(run_dir)
+        if cfg.env_id != env_id or cfg.algo != algo or old_seed != seed:
+            raise RunDirError(f"{run_dir} holds {cfg.algo} seed {old_seed} on {cfg.env_id}; use --retrain or --out")
+        done = json.loads((run_dir / "run.json").read_text()).get("num_timesteps", 0) if (run_dir / "run.json").exists() else 0
+        if (run_dir / "model.zip").exists() and done >= wanted:
+            return run_dir, f"loaded ({done} steps)"
+        log(f"[{algo} seed {seed}] continuing {run_dir} to {wanted} steps")
+        train(env_id, algo, run_dir, timesteps=wanted, n_envs=n_envs, resume=True, progress=progress, log=log)
+        return run_dir, f"resumed to {wanted} steps"
+    log(f"[{algo} seed {seed}] training {wanted} steps -> {run_dir}")
+    start = time.time()
+    train(env_id, algo, run_dir, config=config, timesteps=wanted, seed=seed, n_envs=n_envs, progress=progress, log=log)
+    return run_dir, f"trained {wanted} steps in {time.time() - start:.0f} s"
+
+
+def _num(x: float, name: str) -> str:
+    if name == "success" or 1 <= abs(x) < 100:
+        return f"{x:.2f}"
+    if abs(x) >= 100:
+        return f"{x:.0f}"
+    return f"{x:.3g}"
+
+
+def _isnan(x) -> bool:
+    return x is None or (isinstance(x, float) and math.isnan(x))
+
+
+def _cell(s: dict, name: str) -> str:
+    if _isnan(s["mean"]):
+        return "n/a"
+    if _isnan(s["low"]):
+        return _num(s["mean"], name)
+    return f"{_num(s['mean'], name)} [{_num(s['low'], name)}, {_num(s['high'], name)}]"
+
+
+def table_markdown(rows: list[tuple[str, dict]], metrics=TABLE_METRICS) -> str:
+    head = "| agent | " + " | ".join(f"{m}" + (f" ({METRICS[m][0]})" if METRICS[m][0] else "") for m in metrics) + " |"
+    lines = [head, "|" + "---|" * (len(metrics) + 1)]
+    for label, summary in rows:
+        lines.append(f"| {label} | " + " | ".join(_cell(summary[m], m) for m in metrics) + " |")
+    return "\n".join(lines)
+
+
+def verdicts(rows: dict[str, dict], learned: list[str], baselines: list[str]) -> dict:
+    """Each learned agent against the best fixed-stiffness baseline (highest mean return): beats / worse / overlap."""
+    valid = [b for b in baselines if not math.isnan(rows[b]["return"]["mean"])]
+    if not valid:
+        return {}
+    best = max(valid, key=lambda b: rows[b]["return"]["mean"])
+    b = rows[best]["return"]
+    out = {"best_baseline": best}
+    for name in learned:
+        r = rows[name]["return"]
+        if any(math.isnan(x) for x in (r["low"], r["high"], b["low"], b["high"])):
+            out[name] = "no CI (fewer than two seeds)"
+        elif r["low"] > b["high"]:
+            out[name] = f"beats {best} (95 % CIs of the return do not overlap)"
+        elif r["high"] < b["low"]:
+            out[name] = f"worse than {best} (95 % CIs of the return do not overlap)"
+        else:
+            out[name] = f"not distinguishable from {best} (95 % CIs of the return overlap)"
+    return out
+
+
+def plot_learning_curves(path: Path, runs: dict[str, list[Path]], baseline: tuple[str, float] | None, title: str):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for (algo, dirs), color in zip(runs.items(), ("tab:blue", "tab:orange", "tab:green")):
+        curves = []
+        for d in dirs:
+            f = d / "eval" / "evaluations.npz"
+            if f.is_file():
+                with np.load(f) as ev:
+                    curves.append((ev["timesteps"], ev["results"].mean(axis=1)))
+                ax.plot(*curves[-1], color=color, alpha=0.25, lw=1)
+        if curves:
+            n = min(len(c[0]) for c in curves)
+            if n:
+                mean = np.mean([c[1][:n] for c in curves], axis=0)
+                ax.plot(curves[0][0][:n], mean, color=color, lw=2, label=f"{algo.upper()} (mean of {len(curves)} seeds)")
+    if baseline is not None:
+        ax.axhline(baseline[1], color="k", ls="--", lw=1, label=f"{baseline[0]} (protocol evaluation)")
+    ax.set_xlabel("training steps")
+    ax.set_ylabel("evaluation return")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no periodic evaluation yet", ha="center", transform=ax.transAxes)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_traces(path: Path, traces: dict[str, dict], title: str):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(6.4, 6.4), sharex=True)
+    signals = (("posture_error", "posture error (rad)"), ("contact_force", "contact force (N)"),
+               ("lam", "internal torque lambda (N m)"))
+    for label, tr in traces.items():
+        if tr is None:
+            continue
+        for ax, (key, _) in zip(axes, signals):
+            ax.plot(tr["time"], tr[key], lw=1.2, label=label)
+    for ax, (_, ylabel) in zip(axes, signals):
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].set_title(title, fontsize=9)
+    axes[0].legend(fontsize=7, ncol=2)
+    axes[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, stiffness=DEFAULT_STIFFNESS_LEVELS,
+            out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
+            n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
+            argv: list[str] | None = None, log=print) -> dict:
+    from vswrist_gym.agents.evaluate import AgentSpec
+    from vswrist_gym.agents.runs import limit_threads
+    from vswrist_gym.agents.train import task_id
+
+    limit_threads(1)
+    env_id = task_id(task)
+    out = Path(out) if out else Path("runs") / "compare" / _short(env_id)
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = [int(s) for s in seeds]
+    timesteps, configs = timesteps or {}, configs or {}
+    t0 = time.time()
+
+    runs: dict[str, list[Path]] = {}
+    training = {}
+    for algo in algos:
+        runs[algo] = []
+        for s in seeds:
+            run_dir, what = ensure_trained(env_id, algo, s, out / "runs" / f"{algo}_seed{s}", timesteps.get(algo),
+                                           configs.get(algo), n_envs, retrain, progress, log)
+            runs[algo].append(run_dir)
+            training[f"{algo}_seed{s}"] = what
+            log(f"[{algo} seed {s}] {what}")
+    t_train = time.time() - t0
+
+    rows: dict[str, dict] = {}
+    traces: dict[str, dict] = {}
+    trace_at = (seeds[0], 0)
+    env_kwargs_seen = set()
+    for algo in algos:
+        records = []
+        for s, run_dir in zip(seeds, runs[algo]):
+            agent = TrainedAgent(run_dir)
+            env_kwargs_seen.add(json.dumps(agent.cfg.env_kwargs, sort_keys=True))
+            recs, tr = evaluate(env_id, lambda env, a=agent: (a.check_env(env), a)[1], [s], episodes,
+                                env_kwargs=agent.cfg.env_kwargs, trace_episode=trace_at)
+            records += recs
+            if tr is not None:
+                traces[algo.upper()] = tr
+        rows[algo.upper()] = summarise(records)
+        write_metrics(out / "eval" / algo, {"task": env_id, "agent": algo.upper(), "seeds": seeds,
+                                            "episodes_per_seed": episodes}, records, rows[algo.upper()])
+        log(f"evaluated {algo.upper()}: return {rows[algo.upper()]['return']['mean']:.4g}")
+    if len(env_kwargs_seen) > 1:
+        log("warning: the PPO and SAC runs use different env_kwargs; their rows are not on the same environment")
+    baselines = []
+    if analytic:
+        for k in stiffness:
+            spec = AgentSpec(f"analytic:{k}")
+            records, tr = evaluate(env_id, spec.make, seeds, episodes, trace_episode=trace_at)
+            rows[spec.label] = summarise(records)
+            baselines.append(spec.label)
+            traces[spec.label] = tr
+            write_metrics(out / "eval" / f"analytic_{k:+.2f}", {"task": env_id, "agent": spec.label, "seeds": seeds,
+                                                                 "episodes_per_seed": episodes}, records, rows[spec.label])
+            log(f"evaluated {spec.label}: return {rows[spec.label]['return']['mean']:.4g}")
+    t_total = time.time() - t0
+
+    learned = [a.upper() for a in algos]
+    verdict = verdicts(rows, learned, baselines)
+    table = table_markdown(list(rows.items()))
+    budget = {a: (timesteps.get(a) or load_config(a, env_id, configs.get(a)).n_timesteps) for a in algos}
+    header = (f"{env_id}: means with 95 % confidence intervals over seeds {seeds} "
+              f"({episodes} evaluation episodes per seed); training steps per seed: "
+              + ", ".join(f"{a.upper()} {n}" for a, n in budget.items()))
+    baseline_line = None
+    if verdict:
+        best = verdict["best_baseline"]
+        baseline_line = (best, rows[best]["return"]["mean"])
+    plot_learning_curves(out / "learning_curves.png", runs, baseline_line, f"{env_id}: periodic evaluation")
+    plot_traces(out / "traces.png", traces, f"{env_id}: evaluation episode (seed {trace_at[0]}, episode 0)")
+    doc = {"task": env_id, "seeds": seeds, "episodes_per_seed": episodes, "stiffness_levels": list(stiffness),
+           "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
+           "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
+           "command": "vswrist compare " + shlex.join(argv) if argv is not None else None, "traces": traces}
+    (out / "summary.json").write_text(json.dumps(_clean(doc), indent=2))
+    md = [f"# {header}", "", table, ""]
+    md += [f"- {k}: {v}" for k, v in verdict.items()]
+    md += ["", f"Wall time {t_total:.0f} s (training {t_train:.0f} s); versions: "
+           + ", ".join(f"{k} {v}" for k, v in versions().items() if k != "platform")]
+    if argv is not None:
+        md += ["", f"Command: `vswrist compare {shlex.join(argv)}`"]
+    (out / "table.md").write_text("\n".join(md) + "\n")
+    doc["table"], doc["header"], doc["out"] = table, header, out
+    return doc
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vswrist compare", description=__doc__.splitlines()[0])
+    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
+    p.add_argument("--algos", nargs="+", choices=ALGO_NAMES, default=list(ALGO_NAMES))
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training and evaluation seeds (default 0 1 2)")
+    p.add_argument("--episodes", type=int, default=3, help="evaluation episodes per seed (default 3)")
+    p.add_argument("--stiffness", type=float, nargs="+", default=list(DEFAULT_STIFFNESS_LEVELS),
+                   help="fixed stiffness commands of the analytic baseline, each in [-1, 1]")
+    p.add_argument("--out", help="output directory (default runs/compare/<task>)")
+    p.add_argument("--ppo-timesteps", type=int, help="PPO training steps per seed (default: configs/ppo.yaml)")
+    p.add_argument("--sac-timesteps", type=int, help="SAC training steps per seed (default: configs/sac.yaml)")
+    p.add_argument("--ppo-config", help="PPO hyperparameter file (default configs/ppo.yaml)")
+    p.add_argument("--sac-config", help="SAC hyperparameter file (default configs/sac.yaml)")
+    p.add_argument("--n-envs", type=int, help="parallel environments per training run (overrides n_envs)")
+    p.add_argument("--retrain", action="store_true", help="delete and retrain existing runs in --out")
+    p.add_argument("--no-analytic", action="store_true", help="skip the analytic baseline")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    try:
+        for k in args.stiffness:
+            if not -1.0 <= k <= 1.0:
+                raise ConfigError(f"--stiffness values must be in [-1, 1], got {k}")
+        for name in ("episodes", "ppo_timesteps", "sac_timesteps", "n_envs"):
+            v = getattr(args, name)
+            if v is not None and v <= 0:
+                raise ConfigError(f"--{name.replace('_', '-')} must be a positive integer, got {v}")
+        doc = compare(args.task, algos=args.algos, seeds=args.seeds, episodes=args.episodes, stiffness=args.stiffness,
+                      out=args.out, timesteps={"ppo": args.ppo_timesteps, "sac": args.sac_timesteps},
+                      configs={"ppo": args.ppo_config, "sac": args.sac_config}, n_envs=args.n_envs,
+                      retrain=args.retrain, analytic=not args.no_analytic, progress=not args.no_progress, argv=argv)
+    except (ConfigError, RunDirError, ValueError) as exc:
+        print(f"vswrist compare: error: {exc}", file=sys.stderr)
+        return 2
+    print()
+    print(doc["header"])
+    print(doc["table"])
+    for k, v in doc["verdicts"].items():
+        print(f"  {k}: {v}")
+    out = doc["out"]
+    print(f"\ntable: {out / 'table.md'}\nplots: {out / 'learning_curves.png'}, {out / 'traces.png'}"
+          f"\nper-episode metrics: {out / 'eval'}/*/metrics.csv")
+    return 0

@@ -1,0 +1,126 @@
+"""`vswrist evaluate`: any agent, trained or analytic, under one protocol; per-episode metrics to JSON and CSV.
+
+Examples:
+    vswrist evaluate --task LoadHold --agent runs/loadhold_ppo_0 --episodes 10 --seeds 0 1 2 --out eval/ppo
+    vswrist evaluate --task LoadHold --agent analytic:0.5 --episodes 10 --seeds 0 1 2 --out eval/analytic_0.5
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from vswrist_gym.agents.hparams import ConfigError
+from vswrist_gym.agents.protocol import METRICS, evaluate, summarise, write_metrics
+from vswrist_gym.agents.runs import RunDirError, TrainedAgent, versions
+
+
+class AgentSpec:
+    """An agent named on the command line: 'analytic', 'analytic:STIFFNESS' (in [-1, 1]) or a run directory."""
+
+    def __init__(self, text: str, checkpoint: str = "final"):
+        self.text = text
+        self.trained: TrainedAgent | None = None
+        self.stiffness: float | None = None
+        if text == "analytic" or text.startswith("analytic:"):
+            self.kind = "analytic"
+            if ":" in text:
+                try:
+                    self.stiffness = float(text.split(":", 1)[1])
+                except ValueError:
+                    raise ConfigError(f"--agent {text}: the stiffness after 'analytic:' must be a number in "
+                                      f"[-1, 1]") from None
+                if not -1.0 <= self.stiffness <= 1.0:
+                    raise ConfigError(f"--agent {text}: stiffness must be in [-1, 1], got {self.stiffness}")
+        else:
+            self.kind = "trained"
+            self.trained = TrainedAgent(text, checkpoint=checkpoint)
+
+    @property
+    def label(self) -> str:
+        if self.kind == "analytic":
+            return "analytic" if self.stiffness is None else f"analytic:{self.stiffness:+.2f}"
+        return f"{self.trained.cfg.algo}:{Path(self.text).name}"
+
+    @property
+    def env_kwargs(self) -> dict:
+        return dict(self.trained.cfg.env_kwargs) if self.trained else {}
+
+    def check_task(self, env_id: str) -> None:
+        if self.trained is not None and self.trained.env_id != env_id:
+            raise RunDirError(f"{self.text} was trained on {self.trained.env_id}, not on {env_id}")
+
+    def make(self, env):
+        """Build the agent for `env` (the analytic agent reads the env's action mapping)."""
+        if self.kind == "trained":
+            self.trained.check_env(env)
+            return self.trained
+        try:
+            from vswrist_gym.agents.analytic import AnalyticAgent
+        except ImportError as exc:
+            raise ConfigError(f"the analytic agent is not available in this installation ({exc})") from None
+        if not hasattr(env.unwrapped, "reference_to_action"):
+            raise ConfigError(f"the analytic agent needs a VSWrist task; {env.spec.id if env.spec else env} is not one")
+        kwargs = {} if self.stiffness is None else {"stiffness": self.stiffness}
+        return AnalyticAgent(env, **kwargs)
+
+
+def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path, checkpoint: str = "final",
+        video: str | None = None, argv: list[str] | None = None, trace_episode=None) -> dict:
+    """Evaluate and write DIR/metrics.json and DIR/metrics.csv; returns the metrics document."""
+    from vswrist_gym.agents.runs import limit_threads
+    from vswrist_gym.agents.train import task_id
+
+    limit_threads(1)
+    env_id = task_id(task)
+    spec = AgentSpec(agent, checkpoint=checkpoint)
+    spec.check_task(env_id)
+    records, trace = evaluate(env_id, spec.make, seeds, episodes, env_kwargs=spec.env_kwargs,
+                              trace_episode=trace_episode, video_path=video)
+    summary = summarise(records)
+    header = {"task": env_id, "agent": spec.label, "agent_spec": agent, "checkpoint": checkpoint,
+              "episodes_per_seed": episodes, "seeds": list(seeds), "versions": versions()}
+    if argv is not None:
+        header["command"] = "vswrist evaluate " + shlex.join(argv)
+    if spec.trained is not None:
+        header["training_seed"] = spec.trained.seed
+    write_metrics(Path(out), header, records, summary)
+    return {**header, "summary": summary, "trace": trace}
+
+
+def format_summary(summary: dict) -> str:
+    lines = [f"{'metric':<20} {'unit':<6} {'mean':>11}  95% CI over seeds"]
+    for name, s in summary.items():
+        ci = "n/a" if s["low"] != s["low"] else f"[{s['low']:.4g}, {s['high']:.4g}]"
+        lines.append(f"{name:<20} {METRICS[name][0]:<6} {s['mean']:>11.4g}  {ci}")
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vswrist evaluate", description=__doc__.splitlines()[0])
+    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
+    p.add_argument("--agent", required=True, help="RUN_DIR (from vswrist train), 'analytic' or 'analytic:STIFFNESS'")
+    p.add_argument("--episodes", type=int, default=5, help="episodes per seed (default 5)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (default 0-4)")
+    p.add_argument("--out", required=True, help="output directory for metrics.json and metrics.csv")
+    p.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
+                   help="which model of a run directory: final model, latest checkpoint, best periodic evaluation")
+    p.add_argument("--video", help="also write a video of the first episode (e.g. episode.mp4)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    try:
+        doc = run(args.task, args.agent, args.episodes, args.seeds, args.out, checkpoint=args.checkpoint,
+                  video=args.video, argv=argv)
+    except (ConfigError, RunDirError, ValueError) as exc:
+        print(f"vswrist evaluate: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{doc['agent']} on {doc['task']}: {args.episodes} episodes x seeds {args.seeds}")
+    print(format_summary(doc["summary"]))
+    print(f"metrics: {Path(args.out) / 'metrics.json'} and metrics.csv")
+    return 0

@@ -1,0 +1,241 @@
+"""One evaluation protocol for every agent (trained or analytic), per-episode metrics, and confidence intervals.
+
+Episode `i` of evaluation seed `s` starts from `env.reset(seed=EVAL_SEED_BASE + 1000 s + i)`, so every agent
+meets exactly the same initial conditions and task randomisation. Metrics are computed from the per-step `info`
+of the environment (posture_error [rad], contact_force [N], peak_contact_force [N], elastic_energy [J],
+lam [N m], is_success); a metric whose info key the environment does not provide is NaN.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+EVAL_SEED_BASE = 1_000_000  # far from training seeds (0, 1, ...) and their +rank offsets
+EPISODES_PER_SEED_MAX = 1000
+
+# metric name -> (unit, description); the order is the column order of tables and CSV files.
+METRICS = {
+    "return": ("", "sum of rewards"),
+    "success": ("", "is_success at the last step (1/0)"),
+    "rms_posture_error": ("rad", "RMS of info posture_error over the episode"),
+    "peak_contact_force": ("N", "largest contact force of the episode"),
+    "rms_contact_force": ("N", "RMS of info contact_force over the episode"),
+    "elastic_energy": ("J", "mean elastic energy stored in the springs"),
+    "stiffness_used": ("N m", "mean internal torque lambda (the stiffness the agent chose)"),
+    "length": ("steps", "episode length"),
+}
+
+
+def reset_seed(seed: int, episode: int) -> int:
+    if not 0 <= episode < EPISODES_PER_SEED_MAX:
+        raise ValueError(f"episodes per seed must be in [1, {EPISODES_PER_SEED_MAX}]")
+    return EVAL_SEED_BASE + 1000 * int(seed) + int(episode)
+
+
+@dataclass
+class Trace:
+    """Per-step signals of one episode, for plots."""
+
+    time: list = field(default_factory=list)
+    posture_error: list = field(default_factory=list)
+    contact_force: list = field(default_factory=list)
+    lam: list = field(default_factory=list)
+    reward: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {k: [float(x) for x in v] for k, v in self.__dict__.items()}
+
+
+def _info_value(info: dict, key: str) -> float:
+    value = info.get(key)
+    if value is None:
+        return math.nan
+    return float(np.asarray(value, dtype=float).reshape(-1)[0]) if np.size(value) == 1 else float(np.linalg.norm(value))
+
+
+def run_episode(env, agent, seed: int, frames: list | None = None) -> tuple[dict, Trace]:
+    """Run one episode deterministically; returns the metric record and the trace."""
+    obs, info = env.reset(seed=seed)
+    dt = float(getattr(env.unwrapped, "dt", 1.0))
+    trace = Trace()
+    total, steps, success = 0.0, 0, math.nan
+    peak = math.nan
+    state, episode_start = None, np.ones((1,), dtype=bool)
+    energies = []
+    if frames is not None:
+        frames.append(env.render())
+    while True:
+        action, state = agent.predict(obs, state=state, episode_start=episode_start, deterministic=True)
+        episode_start = np.zeros((1,), dtype=bool)
+        obs, reward, terminated, truncated, info = env.step(action)
+        if frames is not None:
+            frames.append(env.render())
+        steps += 1
+        total += float(reward)
+        trace.time.append(steps * dt)
+        trace.posture_error.append(_info_value(info, "posture_error"))
+        trace.contact_force.append(_info_value(info, "contact_force"))
+        trace.lam.append(_info_value(info, "lam"))
+        trace.reward.append(float(reward))
+        energies.append(_info_value(info, "elastic_energy"))
+        p = _info_value(info, "peak_contact_force")
+        if not math.isnan(p):
+            peak = p if math.isnan(peak) else max(peak, p)
+        if terminated or truncated:
+            if "is_success" in info:
+                success = float(bool(info["is_success"]))
+            break
+    force = np.asarray(trace.contact_force)
+    if not np.all(np.isnan(force)):
+        peak = float(np.nanmax(np.append(force, peak)))
+    record = {
+        "return": total,
+        "success": success,
+        "rms_posture_error": float(np.sqrt(np.mean(np.square(trace.posture_error)))),
+        "peak_contact_force": peak,
+        "rms_contact_force": float(np.sqrt(np.mean(np.square(force)))),
+        "elastic_energy": float(np.mean(energies)),
+        "stiffness_used": float(np.mean(trace.lam)),
+        "length": float(steps),
+    }
+    return record, trace
+
+
+def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | None = None,
+             trace_episode: tuple[int, int] | None = None, video_path: str | Path | None = None,
+             progress=None) -> tuple[list[dict], dict | None]:
+    """Evaluate one agent under the protocol; returns per-episode records and the requested episode's trace.
+
+    `make_agent(env)` builds the agent for an environment (the analytic agent needs it; a trained one ignores it).
+    """
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    if episodes < 1 or episodes > EPISODES_PER_SEED_MAX:
+        raise ValueError(f"episodes must be in [1, {EPISODES_PER_SEED_MAX}], got {episodes}")
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("at least one evaluation seed is needed")
+    env_kwargs = dict(env_kwargs or {})
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        agent = make_agent(env)
+        records, trace = [], None
+        for s in seeds:
+            for i in range(episodes):
+                rec, tr = run_episode(env, agent, reset_seed(s, i))
+                records.append({"seed": s, "episode": i, "reset_seed": reset_seed(s, i), **rec})
+                if trace_episode == (s, i):
+                    trace = tr.to_dict()
+                if progress is not None:
+                    progress()
+    finally:
+        env.close()
+    if video_path is not None:
+        write_video(env_id, make_agent, env_kwargs, reset_seed(seeds[0], 0), Path(video_path))
+    return records, trace
+
+
+def write_video(env_id: str, make_agent, env_kwargs: dict, seed: int, path: Path) -> None:
+    """Render one episode with the environment's rgb_array mode and write it (mp4/gif by suffix)."""
+    import gymnasium as gym
+    import imageio
+
+    env = gym.make(env_id, render_mode="rgb_array", **env_kwargs)
+    try:
+        frames: list = []
+        run_episode(env, make_agent(env), seed, frames=frames)
+        fps = env.metadata.get("render_fps") or int(round(1.0 / float(getattr(env.unwrapped, "dt", 0.05))))
+    finally:
+        env.close()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    imageio.mimsave(path, [np.asarray(f) for f in frames if f is not None], fps=fps)
+
+
+# ------------------------------------------------------------------------------------------------ statistics
+
+
+def t_quantile(p: float, df: int) -> float:
+    """Quantile of Student's t distribution, by bisection on the numerically integrated density (no SciPy)."""
+    if df < 1:
+        raise ValueError("df must be at least 1")
+    if not 0.5 <= p < 1:
+        raise ValueError("p must be in [0.5, 1)")
+    log_c = math.lgamma((df + 1) / 2) - math.lgamma(df / 2) - 0.5 * math.log(df * math.pi)
+
+    def cdf_above_half(x: float) -> float:  # P(0 < T < x), Simpson's rule on a substitution t = tan(theta)
+        upper = math.atan(x)
+        n = 4000
+        th = np.linspace(0.0, upper, n + 1)
+        t = np.tan(th)
+        f = np.exp(log_c - (df + 1) / 2 * np.log1p(t * t / df)) / np.cos(th) ** 2
+        h = upper / n
+        return float(h / 3 * (f[0] + f[-1] + 4 * f[1:-1:2].sum() + 2 * f[2:-1:2].sum()))
+
+    lo, hi = 0.0, 1.0
+    while cdf_above_half(hi) < p - 0.5:
+        hi *= 2
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if cdf_above_half(mid) < p - 0.5:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def mean_ci(values, level: float = 0.95) -> dict:
+    """Mean and the t-based confidence interval of the mean; the interval is NaN for fewer than two values."""
+    x = np.asarray([v for v in values if not math.isnan(v)], dtype=float)
+    n = len(x)
+    if n == 0:
+        return {"mean": math.nan, "low": math.nan, "high": math.nan, "n": 0}
+    mean = float(x.mean())
+    if n < 2:
+        return {"mean": mean, "low": math.nan, "high": math.nan, "n": 1}
+    half = t_quantile(0.5 + level / 2, n - 1) * float(x.std(ddof=1)) / math.sqrt(n)
+    return {"mean": mean, "low": mean - half, "high": mean + half, "n": n}
+
+
+def summarise(records: list[dict]) -> dict:
+    """Per metric: mean over the episodes of each seed, then mean and 95 % CI over seeds."""
+    seeds = sorted({r["seed"] for r in records})
+    out = {}
+    for name in METRICS:
+        per_seed = [float(np.nanmean([r[name] for r in records if r["seed"] == s]))
+                    if not all(math.isnan(r[name]) for r in records if r["seed"] == s) else math.nan
+                    for s in seeds]
+        out[name] = {**mean_ci(per_seed), "per_seed": per_seed, "unit": METRICS[name][0]}
+    return out
+
+
+def _clean(obj):
+    """JSON cannot hold NaN: write null instead."""
+    if isinstance(obj, float):
+        return None if math.isnan(obj) or math.isinf(obj) else obj
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    return obj
+
+
+def write_metrics(out_dir: Path, header: dict, records: list[dict], summary: dict) -> tuple[Path, Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path, csv_path = out_dir / "metrics.json", out_dir / "metrics.csv"
+    doc = {**header, "metrics": {k: {"unit": u, "description": d} for k, (u, d) in METRICS.items()},
+           "summary": summary, "episodes": records}
+    json_path.write_text(json.dumps(_clean(doc), indent=2))
+    with csv_path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=["agent", "seed", "episode", "reset_seed", *METRICS])
+        writer.writeheader()
+        for r in records:
+            writer.writerow({"agent": header.get("agent", ""), **{k: r[k] for k in writer.fieldnames if k in r}})
+    return json_path, csv_path
