@@ -1,0 +1,271 @@
+"""WristSim validated against the analytic model (kinematics.py / stiffness.py), not against itself."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+from vswrist_gym.kinematics import LEG_NAMES, RangeOfMotionError  # noqa: E402
+from vswrist_gym.params import load_params  # noqa: E402
+from vswrist_gym.sim import WristSim  # noqa: E402
+from vswrist_gym.stiffness import coupler_stiffness, lambda_range, motor_references, spring_torque  # noqa: E402
+
+PRESETS = ("paper", "paper_knm")
+
+
+def no_gravity(preset, **extra):
+    return load_params(preset).replace(environment={"gravity": [0.0, 0.0, 0.0]}, **extra)
+
+
+# ------------------------------------------------------------------------------------------- model
+def test_every_element_named_and_home_keyframe_is_closed():
+    sim = WristSim()
+    m = sim.model
+    for obj, count in ((mujoco.mjtObj.mjOBJ_BODY, m.nbody), (mujoco.mjtObj.mjOBJ_JOINT, m.njnt),
+                       (mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu), (mujoco.mjtObj.mjOBJ_SENSOR, m.nsensor),
+                       (mujoco.mjtObj.mjOBJ_SITE, m.nsite), (mujoco.mjtObj.mjOBJ_EQUALITY, m.neq)):
+        start = 1 if obj == mujoco.mjtObj.mjOBJ_BODY else 0  # body 0 is MuJoCo's world
+        assert all(mujoco.mj_id2name(m, obj, i) for i in range(start, count))
+    for name in ("hand", "tool", "coupler", "ps", "base"):
+        assert mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name) >= 0
+    assert m.ncam >= 2
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home"))
+    mujoco.mj_forward(m, d)
+    assert np.abs(d.efc_pos[d.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY]).max() < 1e-12
+    # home: coupler at (r, 0, 0) with the base orientation (domain notes)
+    c = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "coupler")
+    r = 2 * sim.params.geometry.d * np.sin(sim.params.geometry.alpha / 2)
+    np.testing.assert_allclose(d.xpos[c], [r, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(d.xmat[c].reshape(3, 3), np.eye(3), atol=1e-12)
+
+
+@pytest.mark.parametrize("u", [(0.0, 0.0), (0.6, -0.5), (-0.7, 0.8)])
+def test_mujoco_legs_follow_the_dh_table(u):
+    """Each leg's body after q4 sits at the analytic coupler frame for the analytic joint angles."""
+    sim = WristSim()
+    sim.reset(u=u)
+    T = sim.kin.coupler_pose(np.array(u))
+    m, d = sim.model, sim.data
+    for name in LEG_NAMES:
+        b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "coupler" if name == "A" else f"leg{name}_end")
+        np.testing.assert_allclose(d.xpos[b], T[:3, 3], atol=1e-12)
+        np.testing.assert_allclose(d.xmat[b].reshape(3, 3), T[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(sim.posture()[:2], u, atol=1e-12)
+
+
+def test_hand_is_the_papers_point_mass():
+    sim = WristSim()
+    sim.reset()
+    m = sim.model
+    p = sim.params.inertia
+    assert m.body_mass[sim.hand_id] == pytest.approx(p.hand_mass)
+    np.testing.assert_allclose(sim.hand_position(), sim.kin.coupler_pose(np.zeros(2))[:3, 3] + [p.hand_offset, 0, 0],
+                               atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------- statics
+@pytest.mark.parametrize("preset", PRESETS)
+def test_springs_carry_the_preload_and_posture_holds(preset):
+    """Motors at the analytic references for (u, lam): the springs exert lam N and the posture stays at u."""
+    p = no_gravity(preset)
+    sim = WristSim(p)
+    for u in ((0.0, 0.0), (0.6, 0.7), (-0.7, -0.6)):
+        lo, hi = lambda_range(u, p)
+        for lam in (0.9 * lo, 0.5 * hi, 0.9 * hi):  # at the very limit the motor loops saturate
+            sim.reset(u=u, lam=lam)
+            np.testing.assert_allclose(sim.spring_torques(), lam * sim.kin.internal_torque_basis(np.array(u)),
+                                       atol=1e-9 * max(1.0, abs(lam)))
+            sim.step(1.0)
+            assert np.abs(sim.posture()[:2] - u).max() < 1e-3
+            assert sim.loop_closure_error() < 1e-4
+            assert not sim.warnings()
+
+
+def test_spring_torques_match_the_sinh_law():
+    sim = WristSim()
+    u = np.array([0.2, -0.3])
+    sim.reset(u=u, lam=1.0)
+    delta = sim.joint_angles()[0::4] - sim.motor_angles()[:3]
+    np.testing.assert_allclose(sim.spring_torques(), spring_torque(delta, sim.params), rtol=1e-12)
+    np.testing.assert_allclose(sim.deflections(), delta, rtol=1e-12)
+
+
+def measure_stiffness(sim: WristSim, u, lam, du=2e-3):
+    """Static stiffness by central finite differences: torque on the hand, settle, Sigma = dw_u / du."""
+    u = np.asarray(u, dtype=float)
+    S_guess = coupler_stiffness(u, lam, sim.params)  # only to size the load to about du
+    W = sim.kin.coupler_twist_jacobian(u)[:3]  # torque tau on the coupler does work tau . W du
+    to_torque = W @ np.linalg.inv(W.T @ W)
+    loads, moves = [], []
+    for i in range(2):
+        w = S_guess @ (du * np.eye(2)[i])
+        settled = []
+        for sign in (1.0, -1.0):
+            sim.reset(u=u, lam=lam)
+            sim.apply_wrench(torque=to_torque @ (sign * w))
+            for _ in range(400):
+                sim.step(0.1)
+                if np.abs(sim.posture_rate()).max() < 1e-8:
+                    break
+            assert np.abs(sim.posture_rate()).max() < 1e-6, "did not settle"
+            settled.append(sim.posture()[:2])
+        loads.append(w)
+        moves.append((settled[0] - settled[1]) / 2)
+    return np.column_stack(loads) @ np.linalg.inv(np.column_stack(moves))
+
+
+def stiffness_case(preset, u, lam_fraction):
+    p0 = load_params(preset)
+    lo, hi = lambda_range(u, p0)
+    lam = lam_fraction * (hi if lam_fraction > 0 else -lo)
+    S_ref = coupler_stiffness(u, lam, p0)
+    # damping near critical for the slowest mode (does not change the statics) so that it settles quickly
+    c = 0.3 * np.sqrt(np.linalg.eigvalsh(S_ref).min() * 6e-3)
+    sim = WristSim(no_gravity(preset, damping={"leg_joint": c}))
+    S_sim = measure_stiffness(sim, u, lam)
+    err = np.linalg.norm(S_sim - S_ref) / np.linalg.norm(S_ref)
+    S_paper = coupler_stiffness(u, lam, p0, include_load_term=False)
+    err_paper = np.linalg.norm(S_paper - S_sim) / np.linalg.norm(S_sim)
+    return err, err_paper
+
+
+STIFFNESS_POSTURES = ((0.0, 0.0), (0.5, 0.4), (-0.6, -0.5))
+STIFFNESS_PRELOADS = (-0.8, 0.3, 0.9)  # fractions of the allowed range, both signs
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("u", STIFFNESS_POSTURES)
+def test_static_stiffness_matches_analytic_with_load_term(preset, u):
+    for frac in STIFFNESS_PRELOADS:
+        err, err_paper = stiffness_case(preset, u, frac)
+        assert err < 0.03, f"{preset} u={u} lam={frac}: {err:.3%} from the complete analytic stiffness"
+        # the paper's formula misses the load term: measurably off at these preloads (domain notes ~13 %)
+        assert err_paper > 3 * err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("preset", PRESETS)
+def test_static_stiffness_exhaustive(preset):
+    p = load_params(preset)
+    rom = p.range_of_motion
+    postures = [(a, b) for a in np.linspace(rom.rud_min, rom.rud_max, 4) * 0.95
+                for b in np.linspace(rom.fe_min, rom.fe_max, 4) * 0.95]
+    for u in postures:
+        for frac in (-0.95, -0.5, -0.1, 0.0, 0.1, 0.5, 0.95):
+            err, _ = stiffness_case(preset, u, frac)
+            assert err < 0.03, f"{preset} u={u} lam={frac}: {err:.3%}"
+
+
+# --------------------------------------------------------------------------------------- dynamics
+def random_reference_run(preset, seconds=10.0, seed=0, gravity=True):
+    p = load_params(preset) if gravity else no_gravity(preset)
+    sim = WristSim(p)
+    rng = np.random.default_rng(seed)
+    u0 = np.zeros(2)
+    sim.reset(u=u0, lam=lambda_range(u0, p)[1])
+    tl = np.array([p.motor.torque_limit] * 3 + [p.motor.ps_torque_limit])
+    worst_closure, worst_torque = 0.0, 0.0
+    for k in range(int(seconds / 0.02)):
+        if k % 25 == 0:
+            u = rng.uniform(sim.kin.u_min, sim.kin.u_max) * 0.8
+            theta = np.append(motor_references(u, lambda_range(u, p)[1], p), rng.uniform(-2.0, 2.0))
+            sim.set_motor_references(theta)
+        sim.step(0.02)
+        worst_closure = max(worst_closure, sim.loop_closure_error())
+        worst_torque = max(worst_torque, float(np.max(np.abs(sim.motor_torques()) / tl)))
+        state = np.concatenate([sim.data.qpos, sim.data.qvel, sim.data.act])
+        assert np.all(np.isfinite(state))
+    return sim, worst_closure, worst_torque
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_ten_seconds_of_random_references_at_the_largest_preload(preset):
+    sim, closure, torque = random_reference_run(preset)
+    assert not sim.warnings()
+    assert torque <= 1.0 + 1e-12
+    # Known shortfall (docs/model.md): violent reference jumps at the largest preload open the welds by
+    # up to ~1e-2 rad while the chain swings; static and slow motion stay below 1e-4 (tests above).
+    assert closure < 2e-2
+
+
+def test_two_simulators_with_different_springs_in_one_process():
+    """Stepped in turn (with a foreign model in between), each sim deflects under the same load as the
+    analytic compliance of its own K predicts; the foreign model gets no spring forces."""
+    u, lam = np.zeros(2), 0.0  # no preload: sigma_s = 2K/delta0, so the compliance scales with 1/K
+    sims = [WristSim(no_gravity("paper", damping={"leg_joint": 3e-3})),
+            WristSim(no_gravity("paper", damping={"leg_joint": 3e-3}, spring={"K": 0.012}))]
+    foreign = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><joint type="hinge"/><geom size="0.1" mass="1"/></body></worldbody></mujoco>')
+    foreign_data = mujoco.MjData(foreign)
+    tau = np.array([0.0, 0.0, 1e-4])  # N m about Z_b, i.e. flexion/extension
+    W = sims[0].kin.coupler_twist_jacobian(u)[:3]
+    for sim in sims:
+        sim.reset(u=u, lam=lam)
+        sim.apply_wrench(torque=tau)
+    for _ in range(1000):
+        for sim in sims:
+            sim.step(0.02)
+            mujoco.mj_step(foreign, foreign_data)
+    assert np.all(foreign_data.qfrc_passive == 0.0)
+    moves = []
+    for sim in sims:
+        expected = np.linalg.solve(coupler_stiffness(u, lam, sim.params), W.T @ tau)
+        moved = sim.posture()[:2] - u
+        np.testing.assert_allclose(moved, expected, rtol=0.03, atol=1e-3 * np.abs(expected).max())
+        moves.append(np.abs(moved).max())
+    assert moves[0] == pytest.approx(3.0 * moves[1], rel=0.05)
+
+
+def test_state_roundtrip_is_exact():
+    sim = WristSim()
+    sim.reset(u=(0.2, 0.1), lam=1.0)
+    sim.set_motor_references(sim.motor_angles() + [0.1, -0.05, 0.02, 0.5])
+    sim.apply_wrench(force=(0.0, 0.0, -1.0))
+    sim.step(0.1)
+    s = sim.get_state()
+    sim.step(0.2)
+    first = (sim.data.qpos.copy(), sim.posture())
+    sim.set_state(s)
+    sim.step(0.1)
+    sim.posture()  # a lazy forward in between must not change the trajectory
+    sim.step(0.1)
+    np.testing.assert_array_equal(sim.data.qpos, first[0])
+    np.testing.assert_array_equal(sim.posture(), first[1])
+
+
+def test_tool_wrench_is_the_weight_it_holds_at_rest():
+    m_tool = 0.2
+
+    def scene(spec):
+        g = spec.body("tool").add_geom()
+        g.name = "tool_mass"
+        g.type = mujoco.mjtGeom.mjGEOM_SPHERE
+        g.size = [0.01, 0, 0]
+        g.mass = m_tool
+
+    p = load_params("paper_knm").replace(damping={"leg_joint": 0.5})
+    sim = WristSim(p, scene_fn=scene)
+    sim.reset()
+    sim.step(3.0)
+    assert np.abs(sim.posture_rate()).max() < 1e-4
+    g = np.array(p.environment.gravity)
+    # at rest the hand holds the tool against gravity: it pushes with -m g
+    np.testing.assert_allclose(sim.tool_wrench()[:3], -m_tool * g, atol=1e-3)
+
+
+def test_applied_wrench_is_held_and_bad_input_is_named():
+    sim = WristSim()
+    sim.apply_wrench(force=(1.0, 2.0, 3.0))
+    sim.step(0.01)
+    np.testing.assert_array_equal(sim.data.xfrc_applied[sim.hand_id], [1, 2, 3, 0, 0, 0])
+    with pytest.raises(ValueError, match="multiple of the timestep"):
+        sim.step(0.0005)
+    with pytest.raises(ValueError, match="motor references"):
+        sim.set_motor_references([0.0, 0.0, 0.0])
+    with pytest.raises(RangeOfMotionError):
+        sim.reset(u=(1.2, 0.0))
+    with pytest.raises(ValueError, match="lam"):
+        sim.reset(u=(0.0, 0.0), lam=1e3)
