@@ -1,0 +1,20 @@
+"""vswrist-gym: the VS-Wrist variable-stiffness wrist as a MuJoCo simulator and Gymnasium environments.
+
+Importing the package registers the environment ids (``VSWrist/<Task>-v0``) and nothing else: the entry
+points are strings, so MuJoCo, the simulator and torch are imported only when an environment is made.
+"""
+
+from gymnasium.envs.registration import register, registry
+
+ENV_IDS = {
+    "VSWrist/LoadHold-v0": "vswrist_gym.envs.load_hold:LoadHoldEnv",
+    "VSWrist/Polish-v0": "vswrist_gym.envs.polish:PolishEnv",
+    "VSWrist/Impact-v0": "vswrist_gym.envs.impact:ImpactEnv",
+    "VSWrist/Insertion-v0": "vswrist_gym.envs.insertion:InsertionEnv",
+    "VSWrist/Drill-v0": "vswrist_gym.envs.drill:DrillEnv",
+}
+
+for _id, _entry in ENV_IDS.items():
+    if _id not in registry:
+        # episodes end by truncation inside the environment (episode_s of simulated time), so no TimeLimit
+        register(id=_id, entry_point=_entry)

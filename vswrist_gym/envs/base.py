@@ -1,0 +1,537 @@
+"""The VS-Wrist base environment: ``WristSim`` + ``AnalyticController`` behind a Gymnasium interface.
+
+Time is in seconds: the control period ``ctrl_dt`` (default 0.02 s, 50 Hz) must be a whole number of physics
+steps (``physics_dt``, default the simulator's), checked at construction. One ``step``:
+
+1. the action is checked (shape, NaN, inf -> ``ValueError``) and clipped to [-1, 1];
+2. the action mode turns it into motor references (via the analytic controller, except mode ``motor``);
+3. the task applies its external loads (wrenches on the hand, obstacles are in the model);
+4. the simulator advances ``ctrl_dt`` (springs and motors every substep); with ``latency`` randomisation the
+   previous references are held for the first part of the period;
+5. observation, unweighted reward terms, weights from config, metrics.
+
+Contract (used by the agents): ``obs_slices`` (term -> slice of the flat observation, ``target`` = posture
+reference (RUD, FE, PS), rad), ``reference_to_action(posture_ref, stiffness)`` (the inverse of the
+``posture_stiffness`` mapping), ``info`` with every weighted term ``reward_<name>`` (summing exactly to the
+reward) and the metrics ``posture_error`` (rad), ``contact_force`` (N), ``peak_contact_force`` (N),
+``rms_contact_force`` (N), ``elastic_energy`` (J), ``lam`` (N m), ``is_success`` (bool, decided at the last step
+of the episode; False before).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from ..params import load_params
+from .config import SCALE_TERMS, EnvConfigError, load_env_config, validate_task
+from .spaces import ObsTerm, PostureMap, StiffnessMap, check_action, wrap_angle
+
+DEVICE_TERMS = ("spring_K", "spring_delta0", "motor_time_constant", "link_mass", "hand_mass", "damping")
+COMMON_REWARD_TERMS = ("tracking", "energy", "action_rate")
+
+
+def _import_sim():
+    try:
+        from ..sim import WristSim
+    except ImportError as exc:  # the simulator module is part of the package; say so if it is missing
+        raise ImportError(f"vswrist_gym.sim.WristSim is required by the environments: {exc}") from exc
+    return WristSim
+
+
+def _import_controller():
+    try:
+        from ..control import AnalyticController
+    except ImportError as exc:
+        raise ImportError(f"vswrist_gym.control.AnalyticController is required by the environments: {exc}") from exc
+    return AnalyticController
+
+
+class VSWristEnv(gym.Env):
+    """Base class of every VS-Wrist task (do not instantiate directly; use ``gymnasium.make``).
+
+    Subclasses set ``task`` (the config file stem), ``task_spec`` (validation of the ``task`` section),
+    ``task_reward_terms`` and implement ``_scene``, ``_task_reset``, ``_reference``, ``_task_reward_terms``,
+    ``_success``; optionally ``_before_physics``, ``_contact_force``, ``_task_obs_terms``.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    task: str = ""
+    task_id: str = ""
+    summary: str = ""
+    success_text: str = ""
+    task_spec: dict[str, tuple] = {}
+    task_reward_terms: tuple[str, ...] = ()
+
+    # ------------------------------------------------------------------ construction
+    def __init__(self, render_mode: str | None = None, config: Mapping[str, Any] | None = None, **overrides: Any):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                             f"got {render_mode!r}")
+        user = dict(config or {})
+        user.update(overrides)
+        self._user_config = user
+        cfg = load_env_config(self.task, user)
+        self.cfg = cfg
+        self.tp = validate_task(cfg["task"], self.task_spec, self.task)
+        self.render_mode = render_mode
+        self.nominal_params = load_params(cfg["params"])
+        self._validate_task()
+        self.params = self.nominal_params
+        self.ctrl_dt = cfg["ctrl_dt"]
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.ctrl_dt)))
+
+        self._WristSim = _import_sim()
+        self._build_sim(self.nominal_params)
+        self.ctrl = _import_controller()(params=self.nominal_params, dt=self.ctrl_dt,
+                                         gravity_compensation=cfg["gravity_compensation"])
+
+        rom = self.nominal_params.range_of_motion
+        self.posture_map = PostureMap([rom.rud_min, rom.fe_min, rom.ps_min], [rom.rud_max, rom.fe_max, rom.ps_max])
+        self.stiffness_map = StiffnessMap(self._lam_max(), self.nominal_params.spring.K, cfg["stiffness_map"])
+        self.episode_steps = int(math.ceil(cfg["episode_s"] / self.ctrl_dt - 1e-9))
+
+        mode = cfg["action_mode"]
+        n_act = 6 if mode == "posture_compliance" else 4
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
+        if mode == "motor":
+            self._motor_lo, self._motor_hi = self._motor_range()
+
+        reward_names = COMMON_REWARD_TERMS + self.task_reward_terms
+        unknown = sorted(set(cfg["reward"]) - set(reward_names))
+        if unknown:
+            raise EnvConfigError(f"unknown reward term(s) {', '.join('reward.' + u for u in unknown)} for task "
+                                 f"'{self.task}'; allowed: {list(reward_names)}")
+        self.reward_weights = {k: cfg["reward"][k] for k in reward_names if k in cfg["reward"]}
+
+        self._terms = self._obs_terms()
+        unknown = [n for n in cfg["observation"] if n not in self._terms]
+        if unknown:
+            raise EnvConfigError(f"unknown observation term(s) {unknown} for task '{self.task}'; "
+                                 f"allowed: {list(self._terms)}")
+        self.obs_terms = [self._terms[n] for n in cfg["observation"]]
+        self.obs_slices: dict[str, slice] = {}
+        i = 0
+        for t in self.obs_terms:
+            self.obs_slices[t.name] = slice(i, i + t.size)
+            i += t.size
+        self.obs_size = i
+        if cfg["obs_mode"] == "flat":
+            self.observation_space = spaces.Box(-np.inf, np.inf, shape=(i,), dtype=np.float32)
+        else:
+            self.observation_space = spaces.Dict(
+                {t.name: spaces.Box(-np.inf, np.inf, shape=(t.size,), dtype=np.float32) for t in self.obs_terms})
+
+        self._renderer = None
+        self._viewer = None
+        cams = [self.model.camera(i).name for i in range(self.model.ncam)]
+        if cfg["render"]["camera"] not in cams:
+            raise EnvConfigError(f"'render.camera' = {cfg['render']['camera']!r} is not a camera of the model; "
+                                 f"choose one of {cams}")
+        self._reset_state()
+
+    def _validate_task(self) -> None:
+        """Cross-checks of the task section beyond per-field ranges (override in tasks)."""
+
+    def _build_sim(self, params) -> None:
+        self.params = params
+        self.sim = self._WristSim(params=params, scene_fn=self._scene)
+        self.model, self.data = self.sim.model, self.sim.data
+        if self.cfg["physics_dt"] is not None:
+            self.model.opt.timestep = self.cfg["physics_dt"]
+        dt = float(self.model.opt.timestep)
+        n = self.ctrl_dt / dt
+        if abs(n - round(n)) > 1e-9 * n or round(n) < 1:
+            raise EnvConfigError(f"'ctrl_dt' = {self.ctrl_dt:g} s must be a whole number of physics steps of "
+                                 f"{dt:g} s (got {n:.6g}); choose ctrl_dt = k * physics_dt")
+        self.n_substeps = int(round(n))
+        self._scene_ids()
+        self._tool_body = self.model.body("tool").id
+        self._nominal_tool_mass = float(self.model.body_mass[self._tool_body])
+        self._nominal_tool_inertia = self.model.body_inertia[self._tool_body].copy()
+        self._task_geoms = np.array([g for g in range(self.model.ngeom)
+                                     if (self.model.geom(g).name or "").startswith("task_")], dtype=int)
+        self._nominal_friction = self.model.geom_friction[self._task_geoms].copy()
+
+    def _scene_ids(self) -> None:
+        """Look up the task's model elements after (re)compilation (override in tasks)."""
+
+    def _lam_max(self) -> float:
+        """Smallest reachable upper bound of lam over a grid of the range of motion (N m)."""
+        rom = self.nominal_params.range_of_motion
+        his = [self.ctrl.lambda_range(np.array([a, b]))[1]
+               for a in np.linspace(rom.rud_min, rom.rud_max, 5) for b in np.linspace(rom.fe_min, rom.fe_max, 5)]
+        return float(min(his))
+
+    def _motor_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Motor reference range for mode ``motor``: leg angles over the range of motion +- the deflection limit."""
+        from ..kinematics import WristKinematics
+        rom = self.nominal_params.range_of_motion
+        kin = WristKinematics(self.nominal_params)
+        q1 = np.array([kin.joint_angles(np.array([a, b]))[0::4]
+                       for a in np.linspace(rom.rud_min, rom.rud_max, 7)
+                       for b in np.linspace(rom.fe_min, rom.fe_max, 7)])
+        dl = self.nominal_params.spring.deflection_limit
+        lo = np.append(q1.min(axis=0) - dl, rom.ps_min)
+        hi = np.append(q1.max(axis=0) + dl, rom.ps_max)
+        return lo, hi
+
+    # ------------------------------------------------------------------ observation terms
+    def _obs_terms(self) -> dict[str, ObsTerm]:
+        n_act = self.action_space.shape[0]
+        terms = [
+            ObsTerm("posture", 3, "rad", "measured RUD, FE, PS (with sensor noise)", self._obs_posture),
+            ObsTerm("posture_rate", 3, "rad/s", "d/dt of the posture (with sensor noise)", self._obs_posture_rate),
+            ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", lambda: self.sim.motor_angles()),
+            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", lambda: self.sim.deflections()),
+            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", lambda: self.sim.spring_torques()),
+            ObsTerm("stiffness", 3, "N m/rad", "commanded coupler stiffness (RUD-RUD, RUD-FE, FE-FE)",
+                    self._obs_stiffness),
+            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: np.array([self.ctrl.lam])),
+            ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action.copy()),
+            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target.copy()),
+            ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)",
+                    self._obs_wrench),
+            ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (with noise)",
+                    self._obs_contact),
+            ObsTerm("phase", 1, "-", "elapsed fraction of the episode", lambda: np.array([self._step / self.episode_steps])),
+        ]
+        out = {t.name: t for t in terms}
+        for t in self._task_obs_terms():
+            out[t.name] = t
+        return out
+
+    def _task_obs_terms(self) -> list[ObsTerm]:
+        return []
+
+    def _noise(self, key: str, n: int) -> np.ndarray:
+        if self._noise_std is None or self._noise_std[key] == 0.0:
+            return 0.0
+        return self.np_random.normal(0.0, self._noise_std[key], n)
+
+    def _obs_posture(self):
+        return self._posture + self._noise("posture", 3)
+
+    def _obs_posture_rate(self):
+        return self.sim.posture_rate() + self._noise("posture_rate", 3)
+
+    def _obs_wrench(self):
+        w = np.array(self.sim.tool_wrench(), dtype=float)
+        if self._noise_std is not None:
+            w[:3] += self._noise("force", 3)
+            w[3:] += self._noise("torque", 3)
+        return w
+
+    def _obs_contact(self):
+        return np.array([self._contact + (self._noise("force", 1)[0] if self._noise_std is not None
+                                          and self._noise_std["force"] > 0 else 0.0)])
+
+    def _obs_stiffness(self):
+        S = self.ctrl.stiffness()
+        return np.array([S[0, 0], S[0, 1], S[1, 1]])
+
+    def _observation(self):
+        if self.cfg["obs_mode"] == "dict":
+            return {t.name: np.asarray(t.fn(), dtype=np.float32).reshape(t.size).copy() for t in self.obs_terms}
+        obs = np.empty(self.obs_size, dtype=np.float32)
+        for t in self.obs_terms:
+            obs[self.obs_slices[t.name]] = t.fn()
+        return obs
+
+    # ------------------------------------------------------------------ actions
+    def reference_to_action(self, posture_ref, stiffness: float) -> np.ndarray:
+        """The ``posture_stiffness`` action (4,) that commands ``posture_ref`` (RUD, FE, PS; rad) with
+        stiffness command ``stiffness`` in [-1, 1]: the inverse of that mode's mapping."""
+        s = float(stiffness)
+        if not (math.isfinite(s) and -1.0 <= s <= 1.0):
+            raise ValueError(f"stiffness command must be in [-1, 1], got {stiffness!r}")
+        ref = np.asarray(posture_ref, dtype=float)
+        if ref.shape != (3,) or not np.isfinite(ref).all():
+            raise ValueError(f"posture_ref must be 3 finite angles (RUD, FE, PS) in rad, got {posture_ref!r}")
+        return np.append(self.posture_map.to_command(ref), s).astype(np.float32)
+
+    def lam_to_stiffness_command(self, lam: float) -> float:
+        """The stiffness command in [-1, 1] that maps to internal torque ``lam`` (N m), clipped to [0, lam_max]."""
+        return self.stiffness_map.to_command(lam)
+
+    def _motor_refs(self, a: np.ndarray) -> np.ndarray:
+        mode = self.cfg["action_mode"]
+        if mode == "motor":
+            return self._motor_lo + 0.5 * (a + 1.0) * (self._motor_hi - self._motor_lo)
+        if mode == "posture_stiffness":
+            ref = self.posture_map.to_posture(a[:3])
+            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(a[3]))
+        if mode == "residual":
+            r = self.cfg["residual"]
+            ref = self.posture_map.clip(self._target + r["posture_scale"] * a[:3])
+            s = r["stiffness_nominal"] + r["stiffness_scale"] * a[3]
+            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(s))
+        # posture_compliance: diagonal compliances log-mapped, off-diagonal as a correlation in (-0.9, 0.9)
+        c = self.cfg["compliance"]
+        ref = self.posture_map.to_posture(a[:3])
+        lc = np.log(c["min"]) + 0.5 * (a[3:5] + 1.0) * (np.log(c["max"]) - np.log(c["min"]))
+        d = np.exp(lc)
+        off = 0.9 * a[5] * math.sqrt(d[0] * d[1])
+        C = np.array([[d[0], off], [off, d[1]]])
+        return self.ctrl.step(ref, compliance_ref=C)
+
+    # ------------------------------------------------------------------ episode
+    def _reset_state(self) -> None:
+        self._step = 0
+        self._t = 0.0
+        self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
+        self._target = np.zeros(3)
+        self._posture = np.zeros(3)
+        self._contact = 0.0
+        self._peak_contact = 0.0
+        self._sum_contact_sq = 0.0
+        self._noise_std = None
+        self._latency = 0.0
+        self._theta_prev = None
+        self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
+
+    def _randomize(self) -> None:
+        rnd = self.cfg["randomize"]
+        rng = self.np_random
+
+        def factor(term):
+            spec = rnd[term]
+            return float(rng.uniform(*spec["range"])) if spec["enabled"] else 1.0
+
+        if any(rnd[t]["enabled"] for t in DEVICE_TERMS):
+            p = self.nominal_params
+            f = {t: factor(t) for t in DEVICE_TERMS}
+            params = p.replace(
+                spring={"K": p.spring.K * f["spring_K"], "delta0": p.spring.delta0 * f["spring_delta0"]},
+                motor={"time_constant": p.motor.time_constant * f["motor_time_constant"]},
+                inertia={"link_mass": [m * f["link_mass"] for m in p.inertia.link_mass],
+                         "link_inertia": [i * f["link_mass"] for i in p.inertia.link_inertia],
+                         "hand_mass": p.inertia.hand_mass * f["hand_mass"]},
+                damping={"leg_joint": p.damping.leg_joint * f["damping"],
+                         "ps_joint": p.damping.ps_joint * f["damping"]})
+            self._close_renderer()
+            self._build_sim(params)
+        ft = factor("tool_mass")
+        self.model.body_mass[self._tool_body] = self._nominal_tool_mass * ft
+        self.model.body_inertia[self._tool_body] = self._nominal_tool_inertia * ft
+        ff = factor("friction")
+        if self._task_geoms.size:
+            self.model.geom_friction[self._task_geoms] = self._nominal_friction * ff
+        lat = rnd["latency"]
+        self._latency = float(rng.uniform(*lat["range"])) if lat["enabled"] else 0.0
+        noise = rnd["sensor_noise"]
+        self._noise_std = {k: float(noise[k]) for k in ("posture", "posture_rate", "force", "torque")} \
+            if noise["enabled"] else None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._reset_state()
+        self._randomize()
+        u0, ps0, s0 = self._task_reset(self.np_random)
+        lam0 = self.stiffness_map.to_lam(s0)
+        self.sim.reset(u=tuple(u0), ps=float(ps0), lam=lam0)
+        self.ctrl.reset(posture=(float(u0[0]), float(u0[1]), float(ps0)), lam=lam0)
+        self.sim.apply_wrench(np.zeros(3), np.zeros(3))
+        self._after_reset()
+        self._target = self._reference(0.0)
+        self._posture = self.sim.posture()
+        self._contact = self._contact_force()
+        self._theta_prev = None
+        if self.cfg["action_mode"] == "residual":
+            self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
+        return self._observation(), self._info({}, final=False)
+
+    def step(self, action):
+        a = check_action(action, self.action_space.shape)
+        a = np.clip(a, -1.0, 1.0)
+        theta = self._motor_refs(a)
+        self._before_physics(self._t)
+        if self._latency > 0.0 and self._theta_prev is not None:
+            self.sim.step(self._latency)
+            self.sim.set_motor_references(theta)
+            self.sim.step(self.ctrl_dt - self._latency)
+        else:
+            self.sim.set_motor_references(theta)
+            self.sim.step(self.ctrl_dt)
+        self._theta_prev = theta
+        self._step += 1
+        self._t = self._step * self.ctrl_dt
+        self._posture = self.sim.posture()
+        if not np.isfinite(self._posture).all():
+            raise RuntimeError(f"the simulation diverged at t = {self._t:.3f} s (posture {self._posture}); "
+                               f"check the parameters and the physics timestep")
+        self._target = self._reference(self._t)
+        self._contact = self._contact_force()
+        self._peak_contact = max(self._peak_contact, self._contact)
+        self._sum_contact_sq += self._contact * self._contact
+
+        err = wrap_angle(self._posture - self._target)
+        energy = self.elastic_energy()
+        self._history["error"].append(err)
+        self._history["energy"].append(energy)
+        self._history["contact"].append(self._contact)
+        sc = self.cfg["scales"]
+        raw = {
+            "tracking": -float(np.sqrt(np.sum(self._tracking_error(err) ** 2))) / sc["tracking"],
+            "energy": -energy / sc["energy"],
+            "action_rate": -float(np.sum((a - self._prev_action) ** 2)) / a.size,
+        }
+        raw.update(self._task_reward_terms(err))
+        weighted = {f"reward_{k}": w * raw[k] for k, w in self.reward_weights.items()}
+        reward = 0.0
+        for v in weighted.values():
+            reward += v
+        self._prev_action = a.astype(np.float32)
+        truncated = self._step >= self.episode_steps
+        obs = self._observation()
+        info = self._info(weighted, final=truncated)
+        info["posture_error_vec"] = err
+        return obs, float(reward), False, truncated, info
+
+    def _info(self, weighted: dict, final: bool) -> dict:
+        err = wrap_angle(self._posture - self._target)
+        n = max(self._step, 1)
+        info = dict(weighted)
+        info.update(
+            posture_error=float(np.sqrt(err @ err)),
+            contact_force=float(self._contact),
+            peak_contact_force=float(self._peak_contact),
+            rms_contact_force=float(math.sqrt(self._sum_contact_sq / n)),
+            elastic_energy=self.elastic_energy(),
+            lam=float(self.ctrl.lam),
+            time=self._t,
+            is_success=bool(self._success()) if final else False,
+        )
+        return info
+
+    def elastic_energy(self) -> float:
+        """Energy stored in the three springs (J): sum of 2 K delta0 (cosh(delta/delta0) - 1), the integral of
+        the spring law, with the simulator's (possibly randomised) spring parameters."""
+        s = self.params.spring
+        d = np.asarray(self.sim.deflections(), dtype=float)
+        return float(2.0 * s.K * s.delta0 * np.sum(np.cosh(d / s.delta0) - 1.0))
+
+    # ------------------------------------------------------------------ task hooks
+    def _scene(self, spec: mujoco.MjSpec) -> None:
+        """Add task geometry to the model before compilation."""
+
+    def _task_reset(self, rng: np.random.Generator) -> tuple[np.ndarray, float, float]:
+        """Sample the episode; return the initial posture u (2,), PS angle and stiffness command."""
+        raise NotImplementedError
+
+    def _after_reset(self) -> None:
+        """Place task objects once the simulator is at its initial state."""
+
+    def _reference(self, t: float) -> np.ndarray:
+        raise NotImplementedError
+
+    def _before_physics(self, t: float) -> None:
+        """Apply external loads for the coming control period."""
+
+    def _contact_force(self) -> float:
+        """Contact force (N) after a step; the simulator's sensors are current (``posture()`` synced them)."""
+        return 0.0
+
+    def _tracking_error(self, err: np.ndarray) -> np.ndarray:
+        """The part of the posture error (RUD, FE, PS) that the tracking reward counts."""
+        return err
+
+    def _task_reward_terms(self, err: np.ndarray) -> dict[str, float]:
+        return {}
+
+    def _success(self) -> bool:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ helpers for tasks
+    def _window(self, seconds: float) -> int:
+        return max(1, int(round(seconds / self.ctrl_dt)))
+
+    def _add_touch_sensor(self, spec: mujoco.MjSpec, body, name: str, size, pos=(0.0, 0.0, 0.0), quat=None) -> None:
+        kw = {"quat": quat} if quat is not None else {}
+        body.add_site(name=f"{name}_site", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(size), pos=list(pos),
+                      rgba=[0, 0, 0, 0], group=5, **kw)
+        spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_TOUCH, objtype=mujoco.mjtObj.mjOBJ_SITE,
+                        objname=f"{name}_site")
+
+    def tool_point(self, u, ps: float, p_tool) -> np.ndarray:
+        """World position (m) of point ``p_tool`` (tool frame) at posture u (2,), PS angle ps, from the analytic
+        kinematics: O_c + R_c Rx(ps) (hand_offset e_x + p_tool). Used to place task objects."""
+        from ..kinematics import WristKinematics, rot_x
+        if not hasattr(self, "_kin"):
+            self._kin = WristKinematics(self.nominal_params)
+        T = self._kin.coupler_pose(np.asarray(u, dtype=float), allow_outside=True)
+        p = np.array([self.nominal_params.inertia.hand_offset, 0.0, 0.0]) + rot_x(ps) @ np.asarray(p_tool, float)
+        return T[:3, 3] + T[:3, :3] @ p
+
+    def _add_tool_geom(self, spec: mujoco.MjSpec, name: str, fromto, radius: float, mass: float,
+                       friction: float = 0.5) -> None:
+        """A capsule on the ``tool`` body that collides with task objects only (contype 2 / conaffinity 0)."""
+        spec.body("tool").add_geom(name=f"task_{name}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=list(fromto),
+                                   size=[radius, 0, 0], mass=mass, contype=2, conaffinity=0,
+                                   friction=[friction, 0.005, 0.0001], rgba=[0.55, 0.55, 0.6, 1], group=1,
+                                   condim=3)
+
+    def _sensor_adr(self, name: str) -> int:
+        return int(self.model.sensor_adr[self.model.sensor(name).id])
+
+    # ------------------------------------------------------------------ rendering
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        if self.render_mode == "rgb_array":
+            if self._renderer is None:
+                self._renderer = mujoco.Renderer(self.model, self.cfg["render"]["height"], self.cfg["render"]["width"])
+            mujoco.mj_forward(self.model, self.data) if self._step == 0 else None
+            self._renderer.update_scene(self.data, camera=self.cfg["render"]["camera"])
+            return self._renderer.render().copy()
+        if self._viewer is None:
+            import mujoco.viewer
+            self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
+        self._viewer.sync()
+        return None
+
+    def _close_renderer(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+    def close(self):
+        self._close_renderer()
+
+    # ------------------------------------------------------------------ pickling
+    def __getstate__(self):
+        """Pickle the settings and the full episode state; MuJoCo objects are rebuilt on load."""
+        state = {k: v for k, v in self.__dict__.items()
+                 if k not in ("sim", "model", "data", "_renderer", "_viewer", "_WristSim", "_terms", "obs_terms")}
+        state["_sim_state"] = self.sim.get_state()
+        state["_model_mutable"] = (self.model.body_mass.copy(), self.model.body_inertia.copy(),
+                                   self.model.geom_friction.copy())
+        return state
+
+    def __setstate__(self, state):
+        sim_state = state.pop("_sim_state")
+        mass, inertia, friction = state.pop("_model_mutable")
+        self.__dict__.update(state)
+        self._WristSim = _import_sim()
+        self._renderer = None
+        self._viewer = None
+        self.sim = self._WristSim(params=self.params, scene_fn=self._scene)
+        self.model, self.data = self.sim.model, self.sim.data
+        if self.cfg["physics_dt"] is not None:
+            self.model.opt.timestep = self.cfg["physics_dt"]
+        self._scene_ids()
+        self.model.body_mass[:] = mass
+        self.model.body_inertia[:] = inertia
+        self.model.geom_friction[:] = friction
+        self.sim.set_state(sim_state)
+        self._terms = self._obs_terms()
+        self.obs_terms = [self._terms[n] for n in self.cfg["observation"]]

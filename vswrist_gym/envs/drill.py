@@ -1,0 +1,93 @@
+"""``VSWrist/Drill-v0``: hold the tool's posture against an oscillating torque and an axial thrust while the PS
+motor turns the tool.
+
+The drill bit is a capsule on the tool. While the drill is engaged (random onset and duration) the hand feels
+a torque A sin(2 pi f t + phi) about a random axis perpendicular to the tool and a thrust F along the tool
+towards the wrist (the reaction of the workpiece); the PS reference turns at constant speed. Adapting
+stiffness pays: the disturbance acts for only part of the episode, and preload energy is worth paying only
+while it does.
+
+Success: RMS (RUD, FE) error while engaged below ``success_error`` and mean elastic energy below
+``success_energy``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import VSWristEnv
+
+FINGER_END = 0.06  # m, where the hand's fingers end along the tool X axis (model geometry)
+
+
+class DrillEnv(VSWristEnv):
+    task = "drill"
+    task_id = "VSWrist/Drill-v0"
+    summary = "hold the posture against an oscillating torque and an axial thrust while the PS motor turns the tool"
+    success_text = "RMS RUD/FE error while engaged < 0.05 rad and mean elastic energy < 3 J"
+    task_spec = {
+        "tool_length": ("number", 0.0, 0.3),
+        "tool_radius": ("number", 0.001, 0.05),
+        "target_fraction": ("number", 0.0, 1.0),
+        "ps_speed": ("interval", 0.0, 10.0),
+        "torque_amplitude": ("interval", 0.0, 100.0),
+        "torque_frequency": ("interval", 0.0, 25.0),
+        "axial_force": ("interval", 0.0, 1000.0),
+        "engage_s": ("interval", 0.0, 600.0),
+        "engaged_for": ("interval", 0.0, 600.0),
+        "success_error": ("number", 0.0, 10.0),
+        "success_energy": ("number", 0.0, 1e6),
+    }
+
+    def _scene(self, spec) -> None:
+        L = FINGER_END + self.tp["tool_length"]
+        self._add_tool_geom(spec, "drill_bit", [0.02, 0, 0, L, 0, 0], self.tp["tool_radius"], 0.08)
+
+    def _task_reset(self, rng):
+        f = self.tp["target_fraction"]
+        lo, hi = self.posture_map.lo, self.posture_map.hi
+        mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        self._u = mid[:2] + f * half[:2] * rng.uniform(-1.0, 1.0, 2)
+        T = self.cfg["episode_s"]
+        speed = float(rng.uniform(*self.tp["ps_speed"])) * (1.0 if rng.random() < 0.5 else -1.0)
+        sweep = abs(speed) * T
+        room = max(0.0, (hi[2] - lo[2]) - sweep)
+        start = lo[2] + rng.uniform(0.0, room) if room > 0 else lo[2]
+        self._ps0 = start if speed > 0 else hi[2] - (start - lo[2])
+        self._ps_speed = speed
+        self._t_on = float(rng.uniform(*self.tp["engage_s"]))
+        self._t_off = self._t_on + float(rng.uniform(*self.tp["engaged_for"]))
+        self._amp = float(rng.uniform(*self.tp["torque_amplitude"]))
+        self._freq = float(rng.uniform(*self.tp["torque_frequency"]))
+        self._phase = float(rng.uniform(0.0, 2 * np.pi))
+        self._axis_angle = float(rng.uniform(0.0, 2 * np.pi))
+        self._thrust = float(rng.uniform(*self.tp["axial_force"]))
+        self._engaged = False
+        return self._u, self._ps0, float(rng.uniform(-1.0, 1.0))
+
+    def _reference(self, t: float) -> np.ndarray:
+        ps = float(np.clip(self._ps0 + self._ps_speed * t, self.posture_map.lo[2], self.posture_map.hi[2]))
+        return np.array([self._u[0], self._u[1], ps])
+
+    def _before_physics(self, t: float) -> None:
+        tc = t + 0.5 * self.ctrl_dt  # the wrench is held over the period: sample it at the period's middle
+        self._engaged = self._t_on <= tc < self._t_off
+        if not self._engaged:
+            self.sim.apply_wrench(np.zeros(3), np.zeros(3))
+            return
+        R = self.sim.coupler_pose()[:3, :3]
+        x = R[:, 0]
+        axis = R @ np.array([0.0, np.cos(self._axis_angle), np.sin(self._axis_angle)])
+        torque = self._amp * np.sin(2 * np.pi * self._freq * tc + self._phase) * axis
+        self.sim.apply_wrench(-self._thrust * x, torque)
+
+    def _contact_force(self) -> float:
+        """The thrust of the workpiece on the bit (N) while engaged."""
+        return self._thrust if getattr(self, "_engaged", False) else 0.0
+
+    def _success(self) -> bool:
+        t = (np.arange(len(self._history["error"])) + 1) * self.ctrl_dt
+        on = (t > self._t_on) & (t <= self._t_off)
+        err = np.array(self._history["error"])[:, :2]
+        rms = float(np.sqrt(np.mean(np.sum(err[on] ** 2, axis=1)))) if on.any() else 0.0
+        return rms < self.tp["success_error"] and float(np.mean(self._history["energy"])) < self.tp["success_energy"]

@@ -1,0 +1,105 @@
+"""``VSWrist/Impact-v0``: follow a flexion/extension motion during which the tool may meet an obstacle.
+
+The reference moves FE from ``fe_start`` to ``fe_end`` (minimum jerk, ``move_s``) and back, at a random RUD and
+PS. In most episodes (``obstacle_probability``) a wall stands across the tool's path at a random fraction of
+the way; the agent is not told where. Adapting stiffness pays: a stiff wrist tracks the free motion closely
+(gravity and inertia), a soft one keeps the contact force low once the reference pushes into the wall, and the
+force/torque sensor tells when contact begins.
+
+Success: peak contact force below ``success_force`` and RMS posture error over the steps without contact
+below ``success_error``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._contact import add_mocap_box_body, quat_from_matrix
+from .base import VSWristEnv
+from .drill import FINGER_END
+from .load_hold import smoothstep
+
+WALL_HALF = (0.004, 0.03, 0.035)  # m: thickness (along the motion), along the tool, across
+
+
+class ImpactEnv(VSWristEnv):
+    task = "impact"
+    task_id = "VSWrist/Impact-v0"
+    summary = "follow an FE motion that may meet an unexpected obstacle; keep the peak force low while tracking"
+    success_text = "peak contact force < 25 N and RMS posture error without contact < 0.08 rad"
+    task_spec = {
+        "tool_length": ("number", 0.0, 0.3),
+        "tool_radius": ("number", 0.001, 0.05),
+        "rud_range": ("interval", -1.5, 1.5),
+        "fe_start": ("interval", -1.5, 1.5),
+        "fe_end": ("interval", -1.5, 1.5),
+        "move_s": ("interval", 0.05, 600.0),
+        "obstacle_probability": ("number", 0.0, 1.0),
+        "obstacle_fraction": ("interval", 0.0, 1.0),
+        "ps_range": ("interval", -np.pi, np.pi),
+        "success_force": ("number", 0.0, 1e5),
+        "success_error": ("number", 0.0, 10.0),
+    }
+    task_reward_terms = ("force",)
+    contact_threshold = 0.5  # N: a step counts as "in contact" above this force
+
+    def _scene(self, spec) -> None:
+        self._tip_x = FINGER_END + self.tp["tool_length"]
+        self._add_tool_geom(spec, "stick", [0.02, 0, 0, self._tip_x, 0, 0], self.tp["tool_radius"], 0.06)
+        body = add_mocap_box_body(spec, "task_wall", [(WALL_HALF, (0, 0, 0), None)], rgba=(0.7, 0.35, 0.3, 1))
+        hx, hy, hz = WALL_HALF
+        self._add_touch_sensor(spec, body, "wall_touch", (hx + 0.01, hy + 0.01, hz + 0.01))
+
+    def _scene_ids(self) -> None:
+        self._touch_adr = self._sensor_adr("wall_touch")
+        self._mocap = int(self.model.body("task_wall").mocapid[0])
+
+    def _task_reset(self, rng):
+        self._rud = float(rng.uniform(*self.tp["rud_range"]))
+        self._fe0 = float(rng.uniform(*self.tp["fe_start"]))
+        self._fe1 = float(rng.uniform(*self.tp["fe_end"]))
+        if rng.random() < 0.5:
+            self._fe0, self._fe1 = self._fe1, self._fe0
+        self._move = float(rng.uniform(*self.tp["move_s"]))
+        self._ps = float(rng.uniform(*self.tp["ps_range"]))
+        self._obstacle = bool(rng.random() < self.tp["obstacle_probability"])
+        self._frac = float(rng.uniform(*self.tp["obstacle_fraction"]))
+        self._free_err: list[float] = []
+        return np.array([self._rud, self._fe0]), self._ps, float(rng.uniform(-1.0, 1.0))
+
+    def _after_reset(self) -> None:
+        if not self._obstacle:
+            self.data.mocap_pos[self._mocap] = (0.0, 0.0, -5.0)
+            return
+        fe = self._fe0 + self._frac * (self._fe1 - self._fe0)
+        sign = np.sign(self._fe1 - self._fe0)
+        tip = lambda f: self.tool_point(np.array([self._rud, f]), self._ps, np.array([self._tip_x, 0, 0]))  # noqa
+        d = tip(fe + 1e-4 * sign) - tip(fe - 1e-4 * sign)
+        d /= np.linalg.norm(d)
+        axis = tip(fe) - self.tool_point(np.array([self._rud, fe]), self._ps, np.zeros(3))
+        axis -= (axis @ d) * d
+        axis /= np.linalg.norm(axis)
+        R = np.column_stack([d, axis, np.cross(d, axis)])
+        centre = tip(fe) - 0.02 * axis + (self.tp["tool_radius"] + WALL_HALF[0]) * d
+        self.data.mocap_pos[self._mocap] = centre
+        self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
+
+    def _reference(self, t: float) -> np.ndarray:
+        if t <= self._move:
+            s = smoothstep(t / self._move)
+        else:
+            back = max(self.cfg["episode_s"] - self._move, 1e-6)
+            s = 1.0 - smoothstep((t - self._move) / back)
+        return np.array([self._rud, self._fe0 + s * (self._fe1 - self._fe0), self._ps])
+
+    def _contact_force(self) -> float:
+        return float(self.data.sensordata[self._touch_adr])
+
+    def _task_reward_terms(self, err) -> dict:
+        if self._contact <= self.contact_threshold:
+            self._free_err.append(float(err @ err))
+        return {"force": -(self._contact / self.cfg["scales"]["force"]) ** 2}
+
+    def _success(self) -> bool:
+        rms = float(np.sqrt(np.mean(self._free_err))) if self._free_err else 0.0
+        return self._peak_contact < self.tp["success_force"] and rms < self.tp["success_error"]

@@ -1,0 +1,89 @@
+"""``VSWrist/LoadHold-v0``: hold posture references while an unknown load hangs on the hand.
+
+The paper's experiment (1.5 kg at the hand from 0.5 s), generalised: 1-3 piecewise-constant posture references
+(smooth 0.3 s transitions), a load of random mass, onset time and direction (within a cone around gravity)
+applied at the hand centre. Adapting stiffness pays: before the load arrives a soft wrist holds the posture
+without preload energy; after it arrives only a stiff wrist keeps the posture error small.
+
+Success: RMS (RUD, FE) error over the last ``success_window`` s below ``success_error`` and mean elastic energy
+below ``success_energy``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import VSWristEnv
+
+
+def smoothstep(x: float) -> float:
+    """Minimum-jerk blend 0 -> 1 on x in [0, 1]."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * x * (10.0 + x * (-15.0 + 6.0 * x))
+
+
+class LoadHoldEnv(VSWristEnv):
+    task = "load_hold"
+    task_id = "VSWrist/LoadHold-v0"
+    summary = "track posture references while an unknown load (mass, onset, direction) hangs on the hand"
+    success_text = "RMS RUD/FE error over the last 0.5 s < 0.05 rad and mean elastic energy < 3 J"
+    task_spec = {
+        "target_fraction": ("number", 0.0, 1.0),
+        "ps_range": ("interval", -np.pi, np.pi),
+        "n_targets": ("int_interval", 1, 10),
+        "load_mass": ("interval", 0.0, 10.0),
+        "load_onset": ("interval", 0.0, 600.0),
+        "load_cone": ("number", 0.0, np.pi),
+        "success_error": ("number", 0.0, 10.0),
+        "success_window": ("number", 0.0, 600.0),
+        "success_energy": ("number", 0.0, 1e6),
+    }
+    blend_s = 0.3
+
+    def _sample_posture(self, rng) -> np.ndarray:
+        f = self.tp["target_fraction"]
+        lo, hi = self.posture_map.lo, self.posture_map.hi
+        mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        u = mid[:2] + f * half[:2] * rng.uniform(-1.0, 1.0, 2)
+        return np.append(u, rng.uniform(*self.tp["ps_range"]))
+
+    def _task_reset(self, rng):
+        n = int(rng.integers(self.tp["n_targets"][0], self.tp["n_targets"][1] + 1))
+        self._targets = [self._sample_posture(rng) for _ in range(n)]
+        T = self.cfg["episode_s"]
+        self._switch = np.sort(rng.uniform(0.2 * T, 0.8 * T, n - 1)) if n > 1 else np.zeros(0)
+        self._mass = float(rng.uniform(*self.tp["load_mass"]))
+        self._onset = float(rng.uniform(*self.tp["load_onset"]))
+        g = np.asarray(self.params.environment.gravity, dtype=float)
+        gn = np.linalg.norm(g)
+        down = g / gn if gn > 0 else np.array([0.0, 0.0, -1.0])
+        # a direction within load_cone of gravity: tilt 'down' by a random angle about a random perpendicular axis
+        perp = np.cross(down, rng.normal(size=3))
+        perp /= np.linalg.norm(perp)
+        ang = rng.uniform(0.0, self.tp["load_cone"])
+        direction = np.cos(ang) * down + np.sin(ang) * np.cross(perp, down)
+        self._load_force = self._mass * max(gn, 9.81) * direction
+        u0 = self._targets[0]
+        return u0[:2], float(u0[2]), float(rng.uniform(-1.0, 1.0))
+
+    def _reference(self, t: float) -> np.ndarray:
+        ref = self._targets[0].copy()
+        for k, ts in enumerate(self._switch):
+            if t > ts:
+                ref = ref + smoothstep((t - ts) / self.blend_s) * (self._targets[k + 1] - self._targets[k])
+        return ref
+
+    def _before_physics(self, t: float) -> None:
+        # the load acts from the first control period that starts at or after its onset
+        if t + 1e-12 >= self._onset:
+            self.sim.apply_wrench(self._load_force, np.zeros(3))
+
+    def load_info(self) -> dict:
+        """The episode's hidden load (for analysis, not for the agent): mass kg, onset s, force N."""
+        return {"mass": self._mass, "onset": self._onset, "force": self._load_force.copy()}
+
+    def _success(self) -> bool:
+        k = self._window(self.tp["success_window"])
+        err = np.array(self._history["error"][-k:])[:, :2]
+        rms = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+        return rms < self.tp["success_error"] and float(np.mean(self._history["energy"])) < self.tp["success_energy"]
