@@ -1,0 +1,193 @@
+"""AnalyticController: the closed-form fast path against the least-squares kinematics (a second derivation),
+motor references against the spring law, the LM dynamics against brute-force search, input checks."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vswrist_gym.control import AnalyticController
+from vswrist_gym.kinematics import WristKinematics
+from vswrist_gym.params import load_params
+from vswrist_gym.stiffness import (coupler_compliance, coupler_stiffness, lambda_range, max_leg_torque,
+                                   posture_terms, spring_torque, stiffness_from_terms)
+
+
+@pytest.fixture(scope="module", params=["paper", "paper_knm"])
+def params(request):
+    return load_params(request.param)
+
+
+def _postures(kin, n, seed=0):
+    rng = np.random.default_rng(seed)
+    return [np.zeros(2)] + [rng.uniform(kin.u_min, kin.u_max) for _ in range(n)]
+
+
+def test_fast_path_matches_least_squares_kinematics(params):
+    kin, ctrl = WristKinematics(params), AnalyticController(params)
+    for u in _postures(kin, 60):
+        q1, Ja, N = ctrl.kinematics_at(u)
+        np.testing.assert_allclose(q1, kin.joint_angles(u)[0::4], atol=1e-12)
+        np.testing.assert_allclose(Ja, kin.actuated_jacobian(u), atol=1e-10)
+        np.testing.assert_allclose(N, kin.internal_torque_basis(u), atol=1e-10)
+
+
+def test_fast_jacobian_is_the_derivative_of_q1():
+    kin, ctrl = WristKinematics(), AnalyticController()
+    h = 1e-6
+    for u in _postures(kin, 10, seed=1):
+        _, Ja, N = ctrl.kinematics_at(u)
+        for j in range(2):
+            e = np.zeros(2)
+            e[j] = h
+            fd = (kin.joint_angles(u + e, True)[0::4] - kin.joint_angles(u - e, True)[0::4]) / (2 * h)
+            np.testing.assert_allclose(Ja[:, j], fd, atol=1e-8)
+        np.testing.assert_allclose(Ja.T @ N, 0.0, atol=1e-12)
+        assert np.all(N < 0) and math.isclose(np.linalg.norm(N), 1.0)
+
+
+def test_home_values_from_the_domain_notes():
+    _, Ja, N = AnalyticController().kinematics_at((0.0, 0.0))
+    np.testing.assert_allclose(Ja, [[0, 0.5], [-math.sqrt(3) / 4, -0.25], [math.sqrt(3) / 4, -0.25]], atol=1e-12)
+    np.testing.assert_allclose(N, -np.ones(3) / math.sqrt(3), atol=1e-12)
+
+
+def test_motor_references_make_the_springs_exert_lambda_n(params):
+    """At the reference posture the springs must carry exactly lam N (which J_a^T maps to no net torque)."""
+    kin, ctrl = WristKinematics(params), AnalyticController(params)
+    for i, u in enumerate(_postures(kin, 12, seed=2)):
+        lo, hi = lambda_range(u, params)
+        lam = (0.9 * hi) * (i / 6.0 - 1.0)
+        theta = ctrl.step([u[0], u[1], 0.4], lam=lam)
+        q1 = kin.joint_angles(u)[0::4]
+        tau = spring_torque(q1 - theta[:3], params)
+        np.testing.assert_allclose(tau, lam * kin.internal_torque_basis(u), atol=1e-9 * max(1.0, abs(lam)))
+        assert theta[3] == 0.4
+        assert ctrl.lam == pytest.approx(lam)
+
+
+def test_stiffness_and_lambda_range_match_the_analytic_model(params):
+    kin = WristKinematics(params)
+    for include in (True, False):
+        ctrl = AnalyticController(params, include_load_term=include)
+        for u in _postures(kin, 5, seed=3):
+            lo, hi = lambda_range(u, params)
+            assert ctrl.lambda_range(u) == pytest.approx((lo, hi), rel=1e-10)
+            for lam in (lo, 0.3 * lo, 0.0, 0.5 * hi, hi):
+                ctrl.step([u[0], u[1], 0.0], lam=lam)
+                ref = coupler_stiffness(u, lam, params, include_load_term=include)
+                np.testing.assert_allclose(ctrl.stiffness(), ref, rtol=1e-6, atol=1e-9 * np.abs(ref).max())
+
+
+def test_lambda_is_clipped_to_the_torque_and_deflection_limits(params):
+    ctrl = AnalyticController(params)
+    _, hi = ctrl.lambda_range((0.0, 0.0))
+    ctrl.step((0, 0, 0), lam=1e6)
+    assert ctrl.lam == pytest.approx(hi)
+    theta = ctrl.step((0, 0, 0), lam=-1e6)
+    assert ctrl.lam == pytest.approx(-hi)
+    q1 = WristKinematics(params).joint_angles(np.zeros(2))[0::4]
+    delta = q1 - theta[:3]
+    assert np.all(np.abs(delta) <= params.spring.deflection_limit + 1e-12)
+    assert np.all(np.abs(spring_torque(delta, params)) <= max_leg_torque(params) * (1 + 1e-12))
+    ctrl.step((0, 0, 0))                      # neither lam nor compliance: keep lam
+    assert ctrl.lam == pytest.approx(-hi)
+
+
+def test_posture_reference_is_clipped_to_the_range_of_motion():
+    p = load_params()
+    rom = p.range_of_motion
+    ctrl = AnalyticController(p)
+    theta = ctrl.step((5.0, -5.0, 10.0), lam=0.0)
+    np.testing.assert_allclose(ctrl.posture_reference, [rom.rud_max, rom.fe_min, rom.ps_max])
+    np.testing.assert_allclose(theta[:3], WristKinematics(p).joint_angles(np.array([rom.rud_max, rom.fe_min]))[0::4])
+    assert theta[3] == rom.ps_max
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"posture_ref": (0.0, np.nan, 0.0)}, "posture_ref"),
+    ({"posture_ref": (0.0, 0.0, np.inf)}, "posture_ref"),
+    ({"posture_ref": (0.0, 0.0)}, "posture_ref"),
+    ({"posture_ref": (0.0, 0.0, 0.0), "lam": np.nan}, "lam"),
+    ({"posture_ref": (0.0, 0.0, 0.0), "compliance_ref": [[1.0, 0.0], [0.0, np.inf]]}, "compliance_ref"),
+    ({"posture_ref": (0.0, 0.0, 0.0), "lam": 1.0, "compliance_ref": np.eye(2)}, "lam"),
+])
+def test_bad_references_raise_naming_the_argument(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        AnalyticController().step(**kwargs)
+
+
+def test_bad_dt_raises():
+    with pytest.raises(ValueError, match="dt"):
+        AnalyticController(dt=0.0)
+
+
+@pytest.mark.parametrize("u", [(0.0, 0.0), (0.3, -0.4), (-0.6, 0.7)])
+def test_lm_reaches_a_reachable_compliance_within_one_percent(params, u):
+    """c_r = C(u, lam*) is reachable: from lam = 0 the LM dynamics must reach lam* (an independent
+    brute-force search over lam confirms lam* is the minimiser)."""
+    u = np.asarray(u)
+    lo, hi = lambda_range(u, params)
+    lam_star = 0.4 * hi
+    c_ref = coupler_compliance(u, lam_star, params)
+    ctrl = AnalyticController(params, dt=0.02)
+    ctrl.reset((u[0], u[1], 0.0), lam=0.0)
+    for _ in range(100):                                  # 2 s
+        ctrl.step((u[0], u[1], 0.0), compliance_ref=c_ref)
+    assert ctrl.lam == pytest.approx(lam_star, rel=0.01)
+    np.testing.assert_allclose(ctrl.compliance(), c_ref, rtol=0.02, atol=1e-6 * np.abs(c_ref).max())
+
+
+def _brute_force_minimiser(u, c_ref, params, lo, hi, n=4001):
+    """Dense scan of G over [lo, hi], then a second dense scan around the best point."""
+    terms = posture_terms(u, params)
+
+    def scan(grid):
+        return np.array([np.linalg.norm(np.linalg.inv(stiffness_from_terms(terms, lam, params)) - c_ref)
+                         for lam in grid])
+
+    grid = np.linspace(lo, hi, n)
+    i = int(np.argmin(scan(grid)))
+    fine = np.linspace(grid[max(i - 1, 0)], grid[min(i + 1, n - 1)], 2001)
+    return fine, scan(fine)
+
+
+def test_lm_converges_to_the_minimiser_of_g_for_an_unreachable_reference():
+    """Anisotropic c_r that no lam reaches: the LM dynamics settle where dG/dlam = 0, at the minimiser a
+    brute-force 1-D search finds (on the side of lam = 0 the dynamics leave towards)."""
+    p = load_params()
+    u = np.array([0.3, 0.2])
+    c_soft = coupler_compliance(u, 0.5, p)
+    c_ref = np.diag([0.3 * c_soft[0, 0], 1.5 * c_soft[1, 1]])
+    ctrl = AnalyticController(p)
+    ctrl.reset((u[0], u[1], 0.0), lam=0.0)
+    for _ in range(300):                                  # 6 s
+        ctrl.step((u[0], u[1], 0.0), compliance_ref=c_ref)
+    lo, hi = lambda_range(u, p)
+    grid, G = _brute_force_minimiser(u, c_ref, p, 0.0 if ctrl.lam > 0 else lo, hi if ctrl.lam > 0 else 0.0)
+    assert G.min() > 1e-3 * np.linalg.norm(c_ref)          # unreachable indeed
+    best = grid[np.argmin(G)]
+    assert ctrl.lam == pytest.approx(best, abs=2 * (grid[1] - grid[0]) + 1e-4 * abs(best))
+    assert abs(ctrl.lm_rate(ctrl.lam, c_ref)) < 1e-3 * max(1.0, abs(ctrl.lam))
+
+
+def test_gravity_compensation_balances_the_weight_of_hand_and_coupler():
+    """tau_g must satisfy J_a^T tau_g = dV_g/du, with V_g from the exact forward kinematics (finite differences)."""
+    p = load_params()
+    kin = WristKinematics(p)
+    ctrl = AnalyticController(p, gravity_compensation=True)
+    g = np.asarray(p.environment.gravity)
+
+    def V(u):
+        T = kin.coupler_pose(u, allow_outside=True)
+        hand = T[:3, 3] + p.inertia.hand_offset * T[:3, 0]
+        return -(p.inertia.hand_mass * hand + p.inertia.coupler_mass * T[:3, 3]) @ g
+
+    h = 1e-6
+    for u in _postures(kin, 6, seed=4):
+        dV = np.array([(V(u + e) - V(u - e)) / (2 * h) for e in (np.array([h, 0]), np.array([0, h]))])
+        np.testing.assert_allclose(ctrl.gravity_torque(u), dV, atol=1e-7)
+        theta = ctrl.step([u[0], u[1], 0.0], lam=0.0)
+        q1, Ja, _ = ctrl.kinematics_at(u)
+        tau = spring_torque(q1 - theta[:3], p)
+        np.testing.assert_allclose(Ja.T @ tau, dV, atol=1e-7)

@@ -1,0 +1,299 @@
+"""The paper's controller (section 4): exact inverse kinematics for the posture, internal torque for the stiffness.
+
+Given a posture reference u_r = (RUD, FE) and the PS reference, the controller commands the four motors
+
+    theta_k = q1_k(u_r) + delta0 asinh(tau_k / 2K),   tau = lam N(u_r)  (+ tau_g with gravity compensation)
+    theta_PS = PS reference
+
+so that at u_r each sinh spring exerts exactly tau_k on its leg: the internal torque lam N lies in
+ker(J_a^T), loads the springs without moving the coupler, and sets the stiffness. The internal torque is
+either commanded directly (``lam``) or found by the paper's Levenberg-Marquardt dynamics
+d(lam)/dt = -alpha H/(H^2 + nu) G that drive the coupler compliance towards a reference c_r
+(G = ||C(lam) - c_r||_F, H = dG/dlam).
+
+Speed: the posture path is closed-form scalar math. q1 of each leg depends only on the coupler centre
+O_c(u) = r m/|m|, m = x_b + x_c(u), through q1 = atan2(a x0 + b y0, b x0 - a y0) in the leg's frame S_0
+(``WristKinematics.leg_inverse``); J_a = (dq1/dO_c)(dO_c/du) follows from the gradient of that atan2, and N
+is the normalised cross product of the J_a columns (sign as ``WristKinematics.internal_torque_basis``).
+It is an independent derivation of what ``kinematics`` computes with least squares, and is tested against it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .params import WristParams, load_params
+from .stiffness import max_leg_torque
+
+_HESSIAN_STEP = 1e-5  # rad; central differences of the closed-form J_a (error ~1e-10 relative)
+
+
+def _finite_vector(name: str, value, n: int) -> tuple[float, ...]:
+    """Validate a reference: ``n`` finite numbers, else a ValueError that names the argument."""
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be {n} finite numbers, got {value!r}") from exc
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have {n} elements, got shape {np.shape(value)}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    return tuple(float(x) for x in arr)
+
+
+class AnalyticController:
+    """The paper's posture + stiffness controller: posture reference (RUD, FE, PS) -> four motor references.
+
+    ``params``: preset name, YAML path or ``WristParams`` (default preset). ``dt``: control period (s), the
+    integration step of the LM dynamics. ``include_load_term``: stiffness (for the LM dynamics and
+    :meth:`stiffness`) is the complete static stiffness with the load term (default) or the paper's
+    J_a^T Sigma_s J_a (False). ``gravity_compensation``: add the spring torques tau_g (minimum norm,
+    J_a^T tau_g = dV_g/du) that hold the weight of the hand (point mass at ``inertia.hand_offset``) and the
+    coupler at the reference posture under ``environment.gravity``; legs and PS unit are ignored (small),
+    loads unknown to the controller are not compensated. Off by default, as in the paper.
+
+    Posture references outside the range of motion are clipped to it (RUD, FE and PS limits of
+    ``range_of_motion``); lam is clipped to :meth:`lambda_range`, so no spring is asked for more than the
+    motor torque limit or the deflection limit allows.
+    """
+
+    def __init__(self, params: WristParams | str | None = None, dt: float = 0.02, include_load_term: bool = True,
+                 gravity_compensation: bool = False):
+        self.params = p = load_params(params)
+        if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
+            raise ValueError(f"dt (control period) must be a finite number of seconds > 0, got {dt!r}")
+        self.dt = float(dt)
+        self.include_load_term = bool(include_load_term)
+        self.gravity_compensation = bool(gravity_compensation)
+        g = p.geometry
+        sa, ca = math.sin(g.alpha), math.cos(g.alpha)
+        self._r = 2.0 * g.d * math.sin(g.alpha / 2.0)           # radius of the sphere of O_c
+        self._a = g.d * (1.0 - ca)                                # leg_inverse's a
+        self._s = g.d * sa                                        # b = sqrt(s^2 - z0^2) = d sin(alpha) sin(q2)
+        self._legs = tuple((math.cos(e), math.sin(e)) for e in g.eta)
+        self._K, self._delta0 = p.spring.K, p.spring.delta0
+        self._tau_max = max_leg_torque(p)
+        rom = p.range_of_motion
+        self._limits = ((rom.rud_min, rom.rud_max), (rom.fe_min, rom.fe_max), (rom.ps_min, rom.ps_max))
+        self._alpha, self._nu = p.control.lm_alpha, p.control.lm_nu
+        self._masses = (p.inertia.hand_mass, p.inertia.coupler_mass)
+        self._hand_offset = p.inertia.hand_offset
+        self._gravity = tuple(p.environment.gravity)
+        self._terms_key: tuple[float, float] | None = None
+        self._terms = None
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self, posture=(0.0, 0.0, 0.0), lam: float = 0.0) -> np.ndarray:
+        """Start at ``posture`` (RUD, FE, PS) rad with internal torque ``lam`` (N m, clipped); returns theta (4,)."""
+        self._u = (0.0, 0.0)
+        self._ps = 0.0
+        self.lam = 0.0
+        return self.step(posture, lam=lam)
+
+    def step(self, posture_ref, lam: float | None = None, compliance_ref=None) -> np.ndarray:
+        """Motor references theta (4,) rad: PM motors A, B, C and the PS motor, for one control period.
+
+        Exactly one of ``lam`` (internal torque, N m, clipped to the allowed range) or ``compliance_ref``
+        (2x2 coupler compliance, rad/(N m), tracked by the LM dynamics integrated over ``dt``); with neither
+        the current lam is kept. NaN/inf inputs raise ValueError; postures are clipped to the range of motion.
+        """
+        ay, az, ps = _finite_vector("posture_ref", posture_ref, 3)
+        (rlo, rhi), (flo, fhi), (plo, phi) = self._limits
+        ay = rlo if ay < rlo else rhi if ay > rhi else ay
+        az = flo if az < flo else fhi if az > fhi else az
+        ps = plo if ps < plo else phi if ps > phi else ps
+        self._u, self._ps = (ay, az), ps
+        q1, Ja = self._q1_ja(ay, az)
+        N = self._basis(Ja)
+        hi = self._tau_max / max(abs(N[0]), abs(N[1]), abs(N[2]))
+        if lam is not None and compliance_ref is not None:
+            raise ValueError("give either lam (internal torque) or compliance_ref (2x2 compliance), not both")
+        if lam is not None:
+            if isinstance(lam, bool) or not isinstance(lam, (int, float, np.floating, np.integer)) \
+                    or not math.isfinite(lam):
+                raise ValueError(f"lam (internal torque, N m) must be a finite number, got {lam!r}")
+            self.lam = min(max(float(lam), -hi), hi)
+        elif compliance_ref is not None:
+            c_ref = np.asarray(_finite_vector("compliance_ref", compliance_ref, 4)).reshape(2, 2)
+            self.lam = self._lm_update(c_ref, (-hi, hi))
+        else:
+            self.lam = min(max(self.lam, -hi), hi)
+        tau = [self.lam * N[k] for k in range(3)]
+        if self.gravity_compensation:
+            tg = self._gravity_torques(ay, az, Ja)
+            tau = [min(max(tau[k] + tg[k], -self._tau_max), self._tau_max) for k in range(3)]
+        K2, d0 = 2.0 * self._K, self._delta0
+        return np.array([q1[0] + d0 * math.asinh(tau[0] / K2), q1[1] + d0 * math.asinh(tau[1] / K2),
+                         q1[2] + d0 * math.asinh(tau[2] / K2), ps])
+
+    @property
+    def posture_reference(self) -> np.ndarray:
+        """The last (clipped) posture reference (RUD, FE, PS), rad."""
+        return np.array([self._u[0], self._u[1], self._ps])
+
+    # ------------------------------------------------------- fast kinematics
+    def _q1_ja(self, ay: float, az: float):
+        """Actuated joint angles q1 (3,) and J_a = dq1/du (3 lists of 2), closed form (see module docstring)."""
+        cy, sy, cz, sz = math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+        mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
+        nm = math.sqrt(mx * mx + my * my + mz * mz)
+        nx, ny, nz = mx / nm, my / nm, mz / nm
+        r = self._r
+        px, py, pz = r * nx, r * ny, r * nz
+        dps = []
+        for dmx, dmy, dmz in ((-cz * sy, -sz * sy, -cy), (-sz * cy, cz * cy, 0.0)):
+            proj = nx * dmx + ny * dmy + nz * dmz
+            f = r / nm
+            dps.append((f * (dmx - nx * proj), f * (dmy - ny * proj), f * (dmz - nz * proj)))
+        a, s2 = self._a, self._s * self._s
+        q1, Ja = [], []
+        for ce, se in self._legs:
+            x0, y0, z0 = px, ce * py + se * pz, -se * py + ce * pz
+            b = math.sqrt(max(s2 - z0 * z0, 1e-300))
+            Y, X = a * x0 + b * y0, b * x0 - a * y0
+            R2 = X * X + Y * Y
+            gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
+            gz = (X * y0 - Y * x0) * (-z0 / b) / R2
+            q1.append(math.atan2(Y, X))
+            row = []
+            for dx, dy, dz in dps:
+                row.append(gx * dx + gy * (ce * dy + se * dz) + gz * (-se * dy + ce * dz))
+            Ja.append(row)
+        return q1, Ja
+
+    @staticmethod
+    def _basis(Ja) -> tuple[float, float, float]:
+        """N: unit vector of ker(J_a^T) with negative components (positive lam stiffens)."""
+        (a0, b0), (a1, b1), (a2, b2) = Ja
+        n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        inv = 1.0 / math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if n0 + n1 + n2 > 0:
+            inv = -inv
+        return n0 * inv, n1 * inv, n2 * inv
+
+    def kinematics_at(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q1 (3,), J_a (3, 2), N (3,)) at posture u = (RUD, FE), rad, from the closed-form fast path."""
+        ay, az = _finite_vector("u", u, 2)
+        q1, Ja = self._q1_ja(ay, az)
+        return np.array(q1), np.array(Ja), np.array(self._basis(Ja))
+
+    def _posture_terms(self, u: tuple[float, float]):
+        """(J_a, N, H_a) at u, cached for the last posture: H_a[k] = d^2 q1_k/du^2 by central differences."""
+        if self._terms_key != u:
+            _, Ja = self._q1_ja(*u)
+            Ja = np.array(Ja)
+            h = _HESSIAN_STEP
+            Ha = np.empty((3, 2, 2))
+            for j in range(2):
+                e = [0.0, 0.0]
+                e[j] = h
+                plus = np.array(self._q1_ja(u[0] + e[0], u[1] + e[1])[1])
+                minus = np.array(self._q1_ja(u[0] - e[0], u[1] - e[1])[1])
+                Ha[:, :, j] = (plus - minus) / (2 * h)
+            Ha = 0.5 * (Ha + Ha.transpose(0, 2, 1))
+            N = np.array(self._basis(Ja.tolist()))
+            tg = np.array(self._gravity_torques(u[0], u[1], Ja.tolist())) if self.gravity_compensation else None
+            self._terms_key, self._terms = u, (Ja, N, Ha, tg)
+        return self._terms
+
+    # -------------------------------------------------------------- stiffness
+    def lambda_range(self, u=None) -> tuple[float, float]:
+        """(lo, hi) internal torque, N m, allowed at u (default: last reference) by the motor torque and
+        deflection limits: |lam N_k| <= min(motor torque limit, spring torque at the deflection limit)."""
+        ay, az = self._u if u is None else _finite_vector("u", u, 2)
+        N = self._basis(self._q1_ja(ay, az)[1])
+        hi = self._tau_max / max(abs(N[0]), abs(N[1]), abs(N[2]))
+        return -hi, hi
+
+    def _stiffness_and_derivative(self, terms, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """Sigma_c(lam) (2, 2) N m/rad and dSigma_c/dlam, for the spring torques tau = lam N (+ tau_g)."""
+        Ja, N, Ha, tg = terms
+        tau = lam * N if tg is None else np.clip(lam * N + tg, -self._tau_max, self._tau_max)
+        K2 = 2.0 * self._K
+        x = tau / K2
+        root = np.sqrt(1.0 + x * x)
+        sigma = K2 / self._delta0 * root
+        dsigma = (x / root) / self._delta0 * N
+        S = Ja.T @ (sigma[:, None] * Ja)
+        dS = Ja.T @ (dsigma[:, None] * Ja)
+        if self.include_load_term:
+            S = S - np.einsum("k,kij->ij", tau, Ha)
+            dS = dS - np.einsum("k,kij->ij", N, Ha)
+        return 0.5 * (S + S.T), 0.5 * (dS + dS.T)
+
+    def stiffness(self, u=None) -> np.ndarray:
+        """Commanded coupler stiffness Sigma_c (2, 2), N m/rad, at u (default: the last reference) and the
+        current lam; complete (with load term) unless ``include_load_term=False``."""
+        key = self._u if u is None else _finite_vector("u", u, 2)
+        return self._stiffness_and_derivative(self._posture_terms(key), self.lam)[0]
+
+    def compliance(self, u=None) -> np.ndarray:
+        """Commanded coupler compliance C = Sigma_c^-1 (2, 2), rad/(N m)."""
+        return np.linalg.inv(self.stiffness(u))
+
+    def lm_rate(self, lam: float, compliance_ref, u=None) -> float:
+        """The paper's d(lam)/dt = -alpha H/(H^2 + nu) G at lam, with G = ||C(lam) - c_r||_F and H = dG/dlam.
+
+        Written as -alpha <E, dC>/(H^2 + nu) with E = C - c_r, since H G = <E, dC/dlam>: no 0/0 at G = 0.
+        """
+        key = self._u if u is None else _finite_vector("u", u, 2)
+        c_ref = np.asarray(compliance_ref, dtype=float)
+        S, dS = self._stiffness_and_derivative(self._posture_terms(key), lam)
+        C = np.linalg.inv(S)
+        dC = -C @ dS @ C
+        E = C - c_ref
+        G = math.sqrt(float(np.sum(E * E)))
+        HG = float(np.sum(E * dC))
+        H = HG / G if G > 0.0 else 0.0
+        return -self._alpha * HG / (H * H + self._nu)
+
+    def _lm_update(self, c_ref: np.ndarray, bounds: tuple[float, float]) -> float:
+        """Integrate the LM dynamics over one control period from the current lam.
+
+        Linearly implicit Euler, lam += h f / (1 - h f'), with f = d(lam)/dt and f' = df/dlam: one step per
+        period where the dynamics contract (f' < 0; near the minimiser of an unreachable reference they are
+        very stiff, f' ~ -alpha G G''/nu, and explicit Euler would oscillate), sub-steps with h f' <= 0.5
+        where they expand (leaving a maximum of G). lam stays within ``bounds``.
+        """
+        lo, hi = bounds
+        lam = min(max(self.lam, lo), hi)
+        remaining = self.dt
+        for _ in range(1000):
+            if remaining <= 1e-12 * self.dt:
+                break
+            rate = self.lm_rate(lam, c_ref)
+            eps = 1e-7 * max(1.0, abs(lam))
+            slope = (self.lm_rate(lam + eps, c_ref) - rate) / eps
+            h = remaining if slope * remaining <= 0.5 else max(0.5 / slope, remaining / 1000.0)
+            lam = min(max(lam + h * rate / (1.0 - h * slope), lo), hi)
+            remaining -= h
+        return lam
+
+    # ---------------------------------------------------------------- gravity
+    def gravity_torque(self, u=None) -> np.ndarray:
+        """dV_g/du (2,), N m: the generalised gravity load of the hand and coupler at u (default: last reference)."""
+        ay, az = self._u if u is None else _finite_vector("u", u, 2)
+        return np.array(self._gravity_generalised(ay, az))
+
+    def _gravity_generalised(self, ay: float, az: float) -> tuple[float, float]:
+        cy, sy, cz, sz = math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+        m = np.array([1.0 + cz * cy, sz * cy, -sy])
+        nm = float(np.linalg.norm(m))
+        n = m / nm
+        dxc = np.array([[-cz * sy, -sz * cy], [-sz * sy, cz * cy], [-cy, 0.0]])  # d x_c / du (3, 2)
+        dOc = self._r / nm * (dxc - np.outer(n, n @ dxc))
+        g = np.asarray(self._gravity)
+        m_hand, m_coupler = self._masses
+        # V_g = -sum m_i g . p_i; p_hand = O_c + L x_c, p_coupler = O_c
+        dV = -(m_hand * (dOc + self._hand_offset * dxc) + m_coupler * dOc).T @ g
+        return float(dV[0]), float(dV[1])
+
+    def _gravity_torques(self, ay: float, az: float, Ja) -> tuple[float, float, float]:
+        """Minimum-norm spring torques with J_a^T tau_g = dV_g/du (they hold the hand's weight at u)."""
+        J = np.asarray(Ja)
+        w = np.array(self._gravity_generalised(ay, az))
+        tg = J @ np.linalg.solve(J.T @ J, w)
+        return float(tg[0]), float(tg[1]), float(tg[2])
