@@ -121,11 +121,15 @@ class VSWristEnv(gym.Env):
             self.obs_slices[t.name] = slice(i, i + t.size)
             i += t.size
         self.obs_size = i
+        bound = lambda b, t: np.broadcast_to(np.asarray(b, dtype=np.float32), (t.size,))  # noqa: E731
+        self._obs_low = np.concatenate([bound(t.low, t) for t in self.obs_terms]).astype(np.float32)
+        self._obs_high = np.concatenate([bound(t.high, t) for t in self.obs_terms]).astype(np.float32)
         if cfg["obs_mode"] == "flat":
-            self.observation_space = spaces.Box(-np.inf, np.inf, shape=(i,), dtype=np.float32)
+            self.observation_space = spaces.Box(self._obs_low, self._obs_high, dtype=np.float32)
         else:
             self.observation_space = spaces.Dict(
-                {t.name: spaces.Box(-np.inf, np.inf, shape=(t.size,), dtype=np.float32) for t in self.obs_terms})
+                {t.name: spaces.Box(self._obs_low[self.obs_slices[t.name]], self._obs_high[self.obs_slices[t.name]],
+                                    dtype=np.float32) for t in self.obs_terms})
 
         self._renderer = None
         self._viewer = None
@@ -140,10 +144,11 @@ class VSWristEnv(gym.Env):
 
     def _build_sim(self, params) -> None:
         self.params = params
-        self.sim = self._WristSim(params=params, scene_fn=self._scene)
+        self.sim = self._WristSim(params=params, scene_fn=self._full_scene)
         self.model, self.data = self.sim.model, self.sim.data
         if self.cfg["physics_dt"] is not None:
             self.model.opt.timestep = self.cfg["physics_dt"]
+            self.sim.timestep = self.cfg["physics_dt"]
         dt = float(self.model.opt.timestep)
         n = self.ctrl_dt / dt
         if abs(n - round(n)) > 1e-9 * n or round(n) < 1:
@@ -166,6 +171,7 @@ class VSWristEnv(gym.Env):
         rom = self.nominal_params.range_of_motion
         his = [self.ctrl.lambda_range(np.array([a, b]))[1]
                for a in np.linspace(rom.rud_min, rom.rud_max, 5) for b in np.linspace(rom.fe_min, rom.fe_max, 5)]
+        self._lam_hi_max = float(max(his))
         return float(min(his))
 
     def _motor_range(self) -> tuple[np.ndarray, np.ndarray]:
@@ -183,23 +189,38 @@ class VSWristEnv(gym.Env):
 
     # ------------------------------------------------------------------ observation terms
     def _obs_terms(self) -> dict[str, ObsTerm]:
+        """Every observation term this task offers, with physical bounds (see ``ObsTerm``)."""
         n_act = self.action_space.shape[0]
+        p = self.nominal_params
+        dl, K2, d0 = p.spring.deflection_limit, 2.0 * p.spring.K, p.spring.delta0
+        tau_bound = K2 * math.sinh(1.25 * dl / d0)
+        lam_bound = 2.0 * self._lam_hi_max
+        sig_bound = 10.0 * K2 / d0 * math.sqrt(1.0 + (tau_bound / K2) ** 2)
+        half_pi, two_pi = 0.5 * math.pi, 2.0 * math.pi
+        pl, ph = self.posture_map.lo, self.posture_map.hi
         terms = [
-            ObsTerm("posture", 3, "rad", "measured RUD, FE, PS (with sensor noise)", self._obs_posture),
-            ObsTerm("posture_rate", 3, "rad/s", "d/dt of the posture (with sensor noise)", self._obs_posture_rate),
-            ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", lambda: self.sim.motor_angles()),
-            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", lambda: self.sim.deflections()),
-            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", lambda: self.sim.spring_torques()),
+            ObsTerm("posture", 3, "rad", "measured RUD, FE, PS (with sensor noise)", self._obs_posture,
+                    np.array([-half_pi, -half_pi, -two_pi]), np.array([half_pi, half_pi, two_pi])),
+            ObsTerm("posture_rate", 3, "rad/s", "d/dt of the posture (with sensor noise)", self._obs_posture_rate,
+                    -100.0, 100.0),
+            ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", lambda: self.sim.motor_angles(),
+                    -two_pi, two_pi),
+            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", lambda: self._defl.copy(),
+                    -math.pi, math.pi),
+            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", lambda: self.sim.spring_torques(),
+                    -tau_bound, tau_bound),
             ObsTerm("stiffness", 3, "N m/rad", "commanded coupler stiffness (RUD-RUD, RUD-FE, FE-FE)",
-                    self._obs_stiffness),
-            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: np.array([self.ctrl.lam])),
-            ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action.copy()),
-            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target.copy()),
+                    self._obs_stiffness, -sig_bound, sig_bound),
+            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: np.array([self.ctrl.lam]),
+                    -lam_bound, lam_bound),
+            ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action.copy(), -1.0, 1.0),
+            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target.copy(), pl, ph),
             ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)",
-                    self._obs_wrench),
+                    self._obs_wrench, np.array([-1e3] * 3 + [-1e2] * 3), np.array([1e3] * 3 + [1e2] * 3)),
             ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (with noise)",
-                    self._obs_contact),
-            ObsTerm("phase", 1, "-", "elapsed fraction of the episode", lambda: np.array([self._step / self.episode_steps])),
+                    self._obs_contact, 0.0, 1e4),
+            ObsTerm("phase", 1, "-", "elapsed fraction of the episode",
+                    lambda: np.array([self._step / self.episode_steps]), 0.0, 1.0),
         ]
         out = {t.name: t for t in terms}
         for t in self._task_obs_terms():
@@ -228,19 +249,25 @@ class VSWristEnv(gym.Env):
         return w
 
     def _obs_contact(self):
-        return np.array([self._contact + (self._noise("force", 1)[0] if self._noise_std is not None
-                                          and self._noise_std["force"] > 0 else 0.0)])
+        noisy = self._contact + (self._noise("force", 1)[0] if self._noise_std is not None
+                                 and self._noise_std["force"] > 0 else 0.0)
+        return np.array([max(noisy, 0.0)])  # a touch sensor never reads a pull
 
     def _obs_stiffness(self):
         S = self.ctrl.stiffness()
         return np.array([S[0, 0], S[0, 1], S[1, 1]])
 
-    def _observation(self):
-        if self.cfg["obs_mode"] == "dict":
-            return {t.name: np.asarray(t.fn(), dtype=np.float32).reshape(t.size).copy() for t in self.obs_terms}
+    def _raw_observation(self) -> np.ndarray:
         obs = np.empty(self.obs_size, dtype=np.float32)
         for t in self.obs_terms:
             obs[self.obs_slices[t.name]] = t.fn()
+        return obs
+
+    def _observation(self):
+        obs = self._raw_observation()
+        np.clip(obs, self._obs_low, self._obs_high, out=obs)
+        if self.cfg["obs_mode"] == "dict":
+            return {t.name: obs[self.obs_slices[t.name]].copy() for t in self.obs_terms}
         return obs
 
     # ------------------------------------------------------------------ actions
@@ -287,6 +314,8 @@ class VSWristEnv(gym.Env):
         self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
         self._target = np.zeros(3)
         self._posture = np.zeros(3)
+        self._defl = np.zeros(3)
+        self._energy = 0.0
         self._contact = 0.0
         self._peak_contact = 0.0
         self._sum_contact_sq = 0.0
@@ -339,8 +368,7 @@ class VSWristEnv(gym.Env):
         self.sim.apply_wrench(np.zeros(3), np.zeros(3))
         self._after_reset()
         self._target = self._reference(0.0)
-        self._posture = self.sim.posture()
-        self._contact = self._contact_force()
+        self._measure()
         self._theta_prev = None
         if self.cfg["action_mode"] == "residual":
             self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
@@ -361,17 +389,16 @@ class VSWristEnv(gym.Env):
         self._theta_prev = theta
         self._step += 1
         self._t = self._step * self.ctrl_dt
-        self._posture = self.sim.posture()
+        self._measure()
         if not np.isfinite(self._posture).all():
             raise RuntimeError(f"the simulation diverged at t = {self._t:.3f} s (posture {self._posture}); "
                                f"check the parameters and the physics timestep")
         self._target = self._reference(self._t)
-        self._contact = self._contact_force()
         self._peak_contact = max(self._peak_contact, self._contact)
         self._sum_contact_sq += self._contact * self._contact
 
         err = wrap_angle(self._posture - self._target)
-        energy = self.elastic_energy()
+        energy = self._energy
         self._history["error"].append(err)
         self._history["energy"].append(energy)
         self._history["contact"].append(self._contact)
@@ -393,6 +420,14 @@ class VSWristEnv(gym.Env):
         info["posture_error_vec"] = err
         return obs, float(reward), False, truncated, info
 
+    def _measure(self) -> None:
+        """Read the simulator once per step (``posture()`` also brings its sensors up to date)."""
+        self._posture = self.sim.posture()
+        self._defl = self.sim.deflections()
+        s = self.params.spring
+        self._energy = float(2.0 * s.K * s.delta0 * np.sum(np.cosh(self._defl / s.delta0) - 1.0))
+        self._contact = self._contact_force()
+
     def _info(self, weighted: dict, final: bool) -> dict:
         err = wrap_angle(self._posture - self._target)
         n = max(self._step, 1)
@@ -402,7 +437,7 @@ class VSWristEnv(gym.Env):
             contact_force=float(self._contact),
             peak_contact_force=float(self._peak_contact),
             rms_contact_force=float(math.sqrt(self._sum_contact_sq / n)),
-            elastic_energy=self.elastic_energy(),
+            elastic_energy=self._energy,
             lam=float(self.ctrl.lam),
             time=self._t,
             is_success=bool(self._success()) if final else False,
@@ -417,6 +452,18 @@ class VSWristEnv(gym.Env):
         return float(2.0 * s.K * s.delta0 * np.sum(np.cosh(d / s.delta0) - 1.0))
 
     # ------------------------------------------------------------------ task hooks
+    def _full_scene(self, spec: mujoco.MjSpec) -> None:
+        """The task's geometry plus a camera ``task_view`` that frames the hand, the tool and the task objects."""
+        self._scene(spec)
+        pos, target = np.array([0.42, -0.32, 0.16]), np.array([0.17, 0.0, -0.03])
+        f = (target - pos) / np.linalg.norm(target - pos)
+        x = np.cross(f, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(x, f)
+        q = np.zeros(4)
+        mujoco.mju_mat2Quat(q, np.column_stack([x, y, -f]).ravel())  # a camera looks along its -Z
+        spec.worldbody.add_camera(name="task_view", pos=list(pos), quat=list(q), fovy=45.0)
+
     def _scene(self, spec: mujoco.MjSpec) -> None:
         """Add task geometry to the model before compilation."""
 
@@ -487,12 +534,12 @@ class VSWristEnv(gym.Env):
         if self.render_mode == "rgb_array":
             if self._renderer is None:
                 self._renderer = mujoco.Renderer(self.model, self.cfg["render"]["height"], self.cfg["render"]["width"])
-            mujoco.mj_forward(self.model, self.data) if self._step == 0 else None
+            self.sim.posture()  # brings body poses up to date after a step
             self._renderer.update_scene(self.data, camera=self.cfg["render"]["camera"])
             return self._renderer.render().copy()
         if self._viewer is None:
-            import mujoco.viewer
-            self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
+            from mujoco import viewer as mj_viewer  # needs a display (GLFW)
+            self._viewer = mj_viewer.launch_passive(self.model, self.data)
         self._viewer.sync()
         return None
 
@@ -524,10 +571,11 @@ class VSWristEnv(gym.Env):
         self._WristSim = _import_sim()
         self._renderer = None
         self._viewer = None
-        self.sim = self._WristSim(params=self.params, scene_fn=self._scene)
+        self.sim = self._WristSim(params=self.params, scene_fn=self._full_scene)
         self.model, self.data = self.sim.model, self.sim.data
         if self.cfg["physics_dt"] is not None:
             self.model.opt.timestep = self.cfg["physics_dt"]
+            self.sim.timestep = self.cfg["physics_dt"]
         self._scene_ids()
         self.model.body_mass[:] = mass
         self.model.body_inertia[:] = inertia

@@ -5,7 +5,7 @@ PS = 0, so radial/ulnar deviation drives the pin along its own axis (the pin is 
 to its arc of motion half-way into the hole). The hole (square, radial clearance ``clearance``, chamfered) stands
 below the pin; its true position is off nominal by up to ``lateral_error`` along Y_b (fixed by FE) and its
 axis by up to ``angular_error`` about X_b (fixed by PS). The posture reference ramps from above the nominal
-hole to ``overdrive`` rad beyond full depth at the nominal FE and PS = 0. Adapting stiffness pays: a soft
+hole to ``overdrive`` rad beyond full depth at the nominal FE and PS of the hole. Adapting stiffness pays: a soft
 wrist lets the chamfer and walls steer the pin into the true hole without jamming; a stiff one then pushes it
 down against friction.
 
@@ -39,6 +39,7 @@ class InsertionEnv(VSWristEnv):
         "hole_depth": ("number", 0.002, 0.1),
         "chamfer": ("number", 0.0, 0.05),
         "hole_fe": ("interval", -1.5, 1.5),
+        "hole_ps": ("interval", -np.pi, np.pi),
         "start_rud": ("number", -1.5, 1.5),
         "entry_rud": ("number", -1.5, 1.5),
         "overdrive": ("number", 0.0, 1.0),
@@ -118,18 +119,19 @@ class InsertionEnv(VSWristEnv):
     # ------------------------------------------------------------------ episode
     def _task_reset(self, rng):
         self._fe = float(rng.uniform(*self.tp["hole_fe"]))
+        self._ps = float(rng.uniform(*self.tp["hole_ps"]))
         self._lat = float(rng.uniform(-1, 1)) * self.tp["lateral_error"]
         self._ang = float(rng.uniform(-1, 1)) * self.tp["angular_error"]
         self._rud_end = self._rud_at_depth(1.0, self._pin_a, self._pin_v) + self.tp["overdrive"]
         self._depth = 0.0
         self._max_depth = 0.0
-        return np.array([self.tp["start_rud"], self._fe]), 0.0, float(rng.uniform(-1.0, 1.0))
+        return np.array([self.tp["start_rud"], self._fe]), self._ps, float(rng.uniform(-1.0, 1.0))
 
     def _after_reset(self) -> None:
         u_entry = np.array([self.tp["entry_rud"], self._fe])
         u_deep = np.array([self._rud_at_depth(1.0, self._pin_a, self._pin_v), self._fe])
-        entrance = self.tool_point(u_entry, 0.0, self._tip_local)
-        bottom = self.tool_point(u_deep, 0.0, self._tip_local)
+        entrance = self.tool_point(u_entry, self._ps, self._tip_local)
+        bottom = self.tool_point(u_deep, self._ps, self._tip_local)
         axis_in = (bottom - entrance) / np.linalg.norm(bottom - entrance)
         R = frame_from_z(-axis_in)
         # misalignment: shift along Y_b, tilt about X_b through the entrance
@@ -142,7 +144,7 @@ class InsertionEnv(VSWristEnv):
     def _reference(self, t: float) -> np.ndarray:
         s = min(t / self.tp["approach_s"], 1.0)
         rud = self.tp["start_rud"] + s * (self._rud_end - self.tp["start_rud"])
-        return np.array([rud, self._fe, 0.0])
+        return np.array([rud, self._fe, self._ps])
 
     def _contact_force(self) -> float:
         return float(self.data.sensordata[self._touch_adr])

@@ -23,13 +23,16 @@ import numpy as np
 
 @dataclass(frozen=True)
 class ObsTerm:
-    """One named observation term: its size, unit, meaning and a function returning a fresh array."""
+    """One named observation term: its size, unit, meaning, a function returning a fresh array, and its bounds
+    (the declared space; values are clipped to them, which the bounds are chosen never to need in operation)."""
 
     name: str
     size: int
     unit: str
     doc: str
     fn: Callable[[], np.ndarray]
+    low: float | np.ndarray = -np.inf
+    high: float | np.ndarray = np.inf
 
 
 class StiffnessMap:
