@@ -160,19 +160,29 @@ def test_static_stiffness_exhaustive(preset):
 
 
 # --------------------------------------------------------------------------------------- dynamics
-def random_reference_run(preset, seconds=10.0, seed=0, gravity=True):
-    p = load_params(preset) if gravity else no_gravity(preset)
+def random_reference_run(preset, seconds=10.0, seed=0, posture_rate=None):
+    """10 s of random motor references at the largest preload lambda_range(u)[1], gravity on.
+
+    posture_rate None: the references jump to a new random posture every 0.5 s (motors saturate).
+    Otherwise the posture behind the references moves towards each random target at that rate (rad/s), as a
+    controller would command it. The PS reference is random in both."""
+    p = load_params(preset)
     sim = WristSim(p)
     rng = np.random.default_rng(seed)
-    u0 = np.zeros(2)
-    sim.reset(u=u0, lam=lambda_range(u0, p)[1])
+    u = np.zeros(2)
+    sim.reset(u=u, lam=lambda_range(u, p)[1])
     tl = np.array([p.motor.torque_limit] * 3 + [p.motor.ps_torque_limit])
     worst_closure, worst_torque = 0.0, 0.0
+    target, ps = u, 0.0
     for k in range(int(seconds / 0.02)):
         if k % 25 == 0:
-            u = rng.uniform(sim.kin.u_min, sim.kin.u_max) * 0.8
-            theta = np.append(motor_references(u, lambda_range(u, p)[1], p), rng.uniform(-2.0, 2.0))
-            sim.set_motor_references(theta)
+            target, ps = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
+        if posture_rate is None:
+            u = target
+        else:
+            step = target - u
+            u = u + step * min(1.0, posture_rate * 0.02 / max(np.linalg.norm(step), 1e-12))
+        sim.set_motor_references(np.append(motor_references(u, lambda_range(u, p)[1], p), ps))
         sim.step(0.02)
         worst_closure = max(worst_closure, sim.loop_closure_error())
         worst_torque = max(worst_torque, float(np.max(np.abs(sim.motor_torques()) / tl)))
@@ -182,13 +192,21 @@ def random_reference_run(preset, seconds=10.0, seed=0, gravity=True):
 
 
 @pytest.mark.parametrize("preset", PRESETS)
-def test_ten_seconds_of_random_references_at_the_largest_preload(preset):
-    sim, closure, torque = random_reference_run(preset)
+def test_loop_closes_through_ten_seconds_of_random_references_at_the_largest_preload(preset):
+    sim, closure, torque = random_reference_run(preset, posture_rate=3.0)
+    assert closure < 1e-4
     assert not sim.warnings()
     assert torque <= 1.0 + 1e-12
-    # Known shortfall (docs/model.md): violent reference jumps at the largest preload open the welds by
-    # up to ~1e-2 rad while the chain swings; static and slow motion stay below 1e-4 (tests above).
-    assert closure < 2e-2
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_reference_jumps_at_the_largest_preload_stay_finite(preset):
+    """Jumps with saturated motors throw the unlimited mechanism far outside the range of motion (|u| > 1 rad):
+    no warning or NaN, torques within limits; the welds open by up to a few 1e-3 there (docs/model.md)."""
+    sim, closure, torque = random_reference_run(preset, posture_rate=None)
+    assert not sim.warnings()
+    assert torque <= 1.0 + 1e-12
+    assert closure < 1e-2
 
 
 def test_two_simulators_with_different_springs_in_one_process():

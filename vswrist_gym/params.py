@@ -129,6 +129,7 @@ class Simulation:
     constraint_dmin: float = _p("-", 0.0, 1.0, lo_open=True)
     constraint_dmax: float = _p("-", 0.0, 1.0, lo_open=True)
     constraint_width: float = _p("m", 0.0, lo_open=True)
+    stop_timeconst: float = _p("s", 0.0, 1.0, lo_open=True)
     solver_iterations: float = _p("-", 1.0, 1000.0)
     solver_tolerance: float = _p("-", 0.0, 1.0)
 

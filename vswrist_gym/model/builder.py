@@ -157,8 +157,7 @@ def model_xml(params: WristParams | str | None = None) -> str:
     actuators.append(actuator("motor_ps", "ps", mot.ps_torque_limit))
     tendons = [f"""
     <fixed name="deflection_{n}" limited="true" range="{-p.spring.deflection_limit:.17g} {p.spring.deflection_limit:.17g}"
-           solreflimit="{sim.constraint_timeconst:.17g} {sim.constraint_dampratio:.17g}"
-           solimplimit="{sim.constraint_dmin:.17g} {sim.constraint_dmax:.17g} {sim.constraint_width:.17g} 0.5 2">
+           solreflimit="{sim.stop_timeconst:.17g} 1" solimplimit="0.9 0.95 0.001 0.5 2">
       <joint joint="leg{n}_q1" coef="1"/>
       <joint joint="motor_{n}" coef="-1"/>
     </fixed>""" for n in LEG_NAMES]
