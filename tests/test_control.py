@@ -191,3 +191,146 @@ def test_gravity_compensation_balances_the_weight_of_hand_and_coupler():
         q1, Ja, _ = ctrl.kinematics_at(u)
         tau = spring_torque(q1 - theta[:3], p)
         np.testing.assert_allclose(Ja.T @ tau, dV, atol=1e-7)
+
+
+# ------------------------------------------------------------------ closed loop in the MuJoCo simulator
+def _settle(sim, max_s=30.0):
+    for _ in range(int(max_s / 0.1)):
+        sim.step(0.1)
+        if np.abs(sim.posture_rate()).max() < 1e-7:
+            break
+    assert np.abs(sim.posture_rate()).max() < 1e-5, "did not settle"
+
+
+def _damped(preset, u, lam):
+    """Gravity off; leg damping near critical for the slowest mode (the statics do not depend on it)."""
+    p0 = load_params(preset)
+    S = coupler_stiffness(u, lam, p0)
+    c = 0.3 * np.sqrt(np.linalg.eigvalsh(S).min() * 6e-3)
+    return p0.replace(environment={"gravity": [0.0, 0.0, 0.0]}, damping={"leg_joint": max(c, p0.damping.leg_joint)})
+
+
+LEVEL_FRACTIONS = (0.0, 0.05, 0.3, 0.9)    # of the allowed internal torque: soft to stiff
+
+
+@pytest.mark.parametrize("preset", ["paper", "paper_knm"])
+def test_closed_loop_holds_the_posture_at_each_stiffness_level(preset):
+    from vswrist_gym.sim import WristSim
+    target = np.array([0.3, -0.4, 0.2])
+    for frac in LEVEL_FRACTIONS:
+        lam = frac * lambda_range(target[:2], preset)[1]
+        p = _damped(preset, target[:2], lam)
+        sim, ctrl = WristSim(p), AnalyticController(p)
+        sim.reset((0.0, 0.0), 0.0, 0.0)
+        ctrl.reset((0.0, 0.0, 0.0), 0.0)
+        for _ in range(25):                                  # 0.5 s of control at 50 Hz, then hold
+            sim.set_motor_references(ctrl.step(target, lam=lam))
+            sim.step(0.02)
+        _settle(sim)
+        err = np.abs(sim.posture() - target)
+        assert err.max() < 0.01, f"{preset} lam={lam:.3g}: posture error {err} rad"
+
+
+@pytest.mark.parametrize("preset", ["paper", "paper_knm"])
+def test_stiffness_measured_in_the_simulator_follows_the_commanded_lambda(preset):
+    """Central finite differences of the settled posture under small torques on the hand: Sigma = dw_u/du
+    must equal the controller's complete stiffness within 3 % (relative Frobenius), for several lambdas."""
+    from vswrist_gym.sim import WristSim
+    u = np.array([0.3, -0.2])
+    kin = WristKinematics(preset)
+    W = kin.coupler_twist_jacobian(u)[:3]
+    to_torque = W @ np.linalg.inv(W.T @ W)
+    for frac in (-0.5, 0.05, 0.3, 0.9):
+        lo, hi = lambda_range(u, preset)
+        lam = frac * (hi if frac > 0 else -lo)
+        p = _damped(preset, u, lam)
+        sim, ctrl = WristSim(p), AnalyticController(p)
+        ctrl.reset((u[0], u[1], 0.0), lam)
+        S_cmd = ctrl.stiffness()
+        theta = ctrl.step((u[0], u[1], 0.0), lam=lam)
+        loads, moves = [], []
+        for i in range(2):
+            w = S_cmd @ (2e-3 * np.eye(2)[i])
+            settled = []
+            for sign in (1.0, -1.0):
+                sim.reset((0.0, 0.0), 0.0, 0.0)
+                sim.set_motor_references(theta)
+                sim.apply_wrench(torque=to_torque @ (sign * w))
+                _settle(sim)
+                settled.append(sim.posture()[:2])
+            loads.append(w)
+            moves.append((settled[0] - settled[1]) / 2)
+        S_sim = np.column_stack(loads) @ np.linalg.inv(np.column_stack(moves))
+        err = np.linalg.norm(S_sim - S_cmd) / np.linalg.norm(S_cmd)
+        assert err < 0.03, f"{preset} lam={lam:.3g}: measured stiffness {err:.2%} from the commanded one"
+
+
+# ------------------------------------------------------------------ the analytic agent
+class _FakeEnv:
+    """The two members of the env contract the agent uses: obs_slices and reference_to_action."""
+
+    ctrl_dt = 0.1
+
+    def __init__(self):
+        self.obs_slices = {"posture": slice(0, 3), "target": slice(3, 6)}
+        self.calls = []
+
+    @property
+    def unwrapped(self):
+        return self
+
+    def reference_to_action(self, posture_ref, stiffness):
+        self.calls.append((np.array(posture_ref), stiffness))
+        return np.append(np.asarray(posture_ref) / 2.0, stiffness)
+
+
+def test_agent_maps_the_target_and_fixed_stiffness_through_the_env():
+    from vswrist_gym.agents.analytic import AnalyticAgent
+    env = _FakeEnv()
+    agent = AnalyticAgent(env, stiffness=0.25)
+    obs = np.array([9.0, 9.0, 9.0, 0.1, -0.2, 0.3], dtype=np.float32)
+    action, state = agent.predict(obs, deterministic=True)
+    np.testing.assert_allclose(env.calls[-1][0], [0.1, -0.2, 0.3], rtol=1e-6)
+    assert env.calls[-1][1] == 0.25 and state is None
+    np.testing.assert_allclose(action, [0.05, -0.1, 0.15, 0.25], rtol=1e-6)
+    batch, _ = agent.predict(np.stack([obs, obs]))              # vectorised envs: one row each
+    assert batch.shape == (2, 4)
+    dict_action, _ = agent.predict({"target": obs[3:6]})        # dict observations
+    np.testing.assert_allclose(dict_action, action)
+
+
+def test_agent_schedule_follows_episode_time_and_restarts():
+    from vswrist_gym.agents.analytic import AnalyticAgent
+    env = _FakeEnv()                                            # ctrl_dt = 0.1 s
+    agent = AnalyticAgent.from_config(env, {"schedule": {"times": [0.0, 0.3], "values": [-1.0, 0.5]}})
+    obs = np.zeros(6)
+    got = [agent.predict(obs, episode_start=np.array([i == 0]))[0][3] for i in range(5)]
+    assert got == [-1.0, -1.0, -1.0, 0.5, 0.5]                  # t = 0, 0.1, 0.2, 0.3, 0.4 s
+    assert agent.predict(obs, episode_start=np.array([True]))[0][3] == -1.0
+
+
+@pytest.mark.parametrize("bad", [{"stiffness": 1.5}, {"stiffness": float("nan")},
+                                 {"schedule": {"times": [0.3, 0.1], "values": [0, 0]}}, {"speed": 1}])
+def test_agent_rejects_bad_settings(bad):
+    from vswrist_gym.agents.analytic import AnalyticAgent
+    with pytest.raises(ValueError):
+        AnalyticAgent.from_config(_FakeEnv(), bad)
+
+
+def test_agent_on_a_real_environment_tracks_the_target():
+    gym = pytest.importorskip("gymnasium")
+    import vswrist_gym  # noqa: F401  (registers the environments)
+    from vswrist_gym.agents.analytic import AnalyticAgent
+    env = gym.make("VSWrist/LoadHold-v0")
+    obs, _ = env.reset(seed=0)
+    agent = AnalyticAgent(env, stiffness=1.0)
+    errors = []
+    for _ in range(50):
+        action, _ = agent.predict(obs)
+        assert env.action_space.contains(action)
+        obs, _, terminated, truncated, info = env.step(action)
+        errors.append(info["posture_error"])
+        if terminated or truncated:
+            break
+    assert np.all(np.isfinite(errors)) and np.median(errors) < 0.1
+    env.close()

@@ -1,0 +1,296 @@
+"""``vswrist reproduce --out DIR``: the paper's section 5 (figure 3a/3b/3c and the RMS numbers) regenerated.
+
+* Fig. 3a: coupler compliance ellipses at the central posture for four stiffness levels (complete static
+  stiffness, and the paper's J_a^T Sigma_s J_a dashed). Human wrist compliance C_h (Pando et al. 2014) is
+  not shown: no published numeric matrix was found offline, and the figure says so.
+* Fig. 3b: the elastic (spring) torque of each leg at those four levels, with the coupler stiffness.
+* Fig. 3c: posture tracking at low (LS) and high (HS) stiffness with a 1.5 kg load at the hand centre from
+  t = 0.5 s, in the MuJoCo simulator, under the paper's controller (``AnalyticController``).
+* ``DIR/results.json``: per preset the RMS posture error and RMS elastic torque of both trials beside the
+  paper's numbers, the HS/LS ratios and the criteria, and every choice the paper leaves open (``choices``).
+
+Choices the paper leaves open (also in ``results.json`` and docs/reproduce.md):
+
+* LS and HS: the internal torques whose per-leg elastic torque at rest is the paper's RMS elastic torque,
+  0.07 N m and 1.72 N m (lam = sqrt(3) x that at the central posture, where N = -(1, 1, 1)/sqrt(3)).
+* Four stiffness levels of Fig. 3a/3b: per-leg elastic torques 0.07, 0.3, 0.8, 1.72 N m.
+* Gravity: the preset's ``environment.gravity`` (both presets: -Z_b, forearm horizontal), acting on the whole
+  device; the 1.5 kg load is its weight, 1.5 kg x gravity, applied at the hand point (``sim.apply_wrench``).
+  The controller's gravity feed-forward holds the hand's own (known) weight; the load is an unknown
+  disturbance to it (``--no-gravity-compensation`` runs the paper's controller without it).
+* Trajectory: RUD(t) = 0.15 sin(2 pi t / 2 s), FE(t) = 0.3 sin(2 pi t / 4 s), PS = 0, for 4 s (1.5 s with
+  ``--quick``); control period 0.01 s.
+* RMS posture error: over the control samples of the whole trial, of the norm of the (RUD, FE) error against
+  the reference at the same instant. RMS elastic torque: over the samples and the three legs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .control import AnalyticController
+from .params import PRESETS, load_params
+from .stiffness import coupler_stiffness
+
+PAPER = {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
+LEVELS_PER_LEG = (0.07, 0.3, 0.8, 1.72)        # N m, per-leg elastic torque of the four levels
+LS_PER_LEG, HS_PER_LEG = 0.07, 1.72            # N m
+LOAD_MASS, LOAD_TIME = 1.5, 0.5                # kg, s
+CONTROL_DT = 0.01                              # s
+CRITERION_RATIO = 10.0
+IMPLIED_LOAD_TORQUE = 0.015                    # N m, see implied_load_scenario
+
+
+def reference(t: float) -> tuple[float, float, float]:
+    """Posture reference (RUD, FE, PS), rad, at time t (s)."""
+    return (0.15 * math.sin(2 * math.pi * t / 2.0), 0.3 * math.sin(2 * math.pi * t / 4.0), 0.0)
+
+
+def per_leg_to_lambda(per_leg: float) -> float:
+    """Internal torque (N m) whose per-leg elastic torque at the central posture is ``per_leg`` (N = -(1,1,1)/sqrt 3)."""
+    return per_leg * math.sqrt(3.0)
+
+
+def trial(params, lam: float, duration: float, gravity_compensation: bool = True, load=None) -> dict:
+    """One Fig. 3c trial in the simulator: track ``reference`` at internal torque lam, load from LOAD_TIME.
+
+    ``load``: the force (N, base frame) at the hand point; default LOAD_MASS x ``environment.gravity``."""
+    from .sim import SimulationError, WristSim
+
+    sim = WristSim(params)
+    ctrl = AnalyticController(params, dt=CONTROL_DT, gravity_compensation=gravity_compensation)
+    ref0 = reference(0.0)
+    ctrl.reset(ref0, lam=lam)
+    sim.reset(u=ref0[:2], ps=ref0[2], lam=ctrl.lam)
+    load = LOAD_MASS * np.asarray(params.environment.gravity, dtype=float) if load is None else np.asarray(load)
+    n = int(round(duration / CONTROL_DT))
+    t_log, ref_log, post_log, tau_log = [], [], [], []
+    status = "ok"
+    try:
+        for i in range(n):
+            t = i * CONTROL_DT
+            if abs(t - LOAD_TIME) < 1e-9:
+                sim.apply_wrench(load, (0.0, 0.0, 0.0))
+            sim.set_motor_references(ctrl.step(reference(t), lam=lam))
+            sim.step(CONTROL_DT)
+            t1 = (i + 1) * CONTROL_DT
+            post = sim.posture()
+            if not np.all(np.isfinite(post)):
+                raise SimulationError(f"non-finite posture at t = {t1:.3f} s")
+            t_log.append(t1)
+            ref_log.append(reference(t1))
+            post_log.append(post)
+            tau_log.append(sim.spring_torques())
+    except SimulationError as exc:
+        status = f"simulation stopped: {exc}"
+    ref_a, post_a, tau_a = np.array(ref_log), np.array(post_log), np.array(tau_log)
+    err = np.linalg.norm(post_a[:, :2] - ref_a[:, :2], axis=1)
+    return {"t": np.array(t_log), "ref": ref_a, "posture": post_a, "tau": tau_a, "lam": float(ctrl.lam),
+            "rms_error": float(np.sqrt(np.mean(err ** 2))), "rms_torque": float(np.sqrt(np.mean(tau_a ** 2))),
+            "max_error": float(err.max()), "status": status}
+
+
+def _preset_results(params, duration: float, gravity_compensation: bool) -> tuple[dict, dict]:
+    ls = trial(params, per_leg_to_lambda(LS_PER_LEG), duration, gravity_compensation)
+    hs = trial(params, per_leg_to_lambda(HS_PER_LEG), duration, gravity_compensation)
+    u0 = np.zeros(2)
+    k_ls = np.linalg.eigvalsh(coupler_stiffness(u0, ls["lam"], params))
+    k_hs = np.linalg.eigvalsh(coupler_stiffness(u0, hs["lam"], params))
+    hand_lever = params.inertia.hand_offset + params.geometry.d * math.sin(params.geometry.alpha / 2.0)
+    out = {
+        "rms_error_ls": ls["rms_error"], "rms_error_hs": hs["rms_error"],
+        "rms_torque_ls": ls["rms_torque"], "rms_torque_hs": hs["rms_torque"],
+        "error_ratio_ls_over_hs": ls["rms_error"] / hs["rms_error"],
+        "torque_ratio_hs_over_ls": hs["rms_torque"] / ls["rms_torque"],
+        "max_error_ls": ls["max_error"], "max_error_hs": hs["max_error"],
+        "lambda_ls": ls["lam"], "lambda_hs": hs["lam"],
+        "stiffness_eig_ls": k_ls.tolist(), "stiffness_eig_hs": k_hs.tolist(),
+        "status_ls": ls["status"], "status_hs": hs["status"],
+        # the load torque the paper's own numbers imply: stiffness x the paper's RMS error, in each trial
+        "paper_implied_load_torque_ls": float(k_ls.mean() * PAPER["rms_error_ls"]),
+        "paper_implied_load_torque_hs": float(k_hs.mean() * PAPER["rms_error_hs"]),
+        "load_torque_at_centre": float(LOAD_MASS * np.linalg.norm(params.environment.gravity) * hand_lever),
+    }
+    return out, {"ls": ls, "hs": hs}
+
+
+def implied_load_scenario(params, duration: float) -> dict:
+    """Diagnostic: the paper's numbers imply a load torque of only ~0.015 N m in both trials (stiffness x RMS
+    error). Gravity off, a force along -Z_b at the hand point whose torque at the central posture is that
+    (force = 0.015 N m / lever): does the controller then show the paper's HS/LS ratios?"""
+    p0 = params.replace(environment={"gravity": [0.0, 0.0, 0.0]})
+    lever = params.inertia.hand_offset + params.geometry.d * math.sin(params.geometry.alpha / 2.0)
+    force = np.array([0.0, 0.0, -IMPLIED_LOAD_TORQUE / lever])
+    ls = trial(p0, per_leg_to_lambda(LS_PER_LEG), duration, False, load=force)
+    hs = trial(p0, per_leg_to_lambda(HS_PER_LEG), duration, False, load=force)
+    return {"description": f"gravity off; {np.linalg.norm(force):.3g} N along -Z_b at the hand point from "
+                           f"t = {LOAD_TIME} s ({IMPLIED_LOAD_TORQUE} N m about the centre)",
+            "rms_error_ls": ls["rms_error"], "rms_error_hs": hs["rms_error"],
+            "rms_torque_ls": ls["rms_torque"], "rms_torque_hs": hs["rms_torque"],
+            "error_ratio_ls_over_hs": ls["rms_error"] / hs["rms_error"],
+            "torque_ratio_hs_over_ls": hs["rms_torque"] / ls["rms_torque"]}
+
+
+def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    u0 = np.zeros(2)
+    ctrl = AnalyticController(params)
+    ctrl_paper = AnalyticController(params, include_load_term=False)
+    phi = np.linspace(0, 2 * np.pi, 200)
+    circle = np.vstack([np.cos(phi), np.sin(phi)])
+    colors = plt.cm.viridis(np.linspace(0.0, 0.85, len(LEVELS_PER_LEG)))
+    fig, ax = plt.subplots(figsize=(4.6, 4.2))
+    torques, stiff = [], []
+    for c, per_leg in zip(colors, LEVELS_PER_LEG):
+        lam = per_leg_to_lambda(per_leg)
+        ctrl.reset((0, 0, 0), lam=lam)
+        ctrl_paper.reset((0, 0, 0), lam=lam)
+        for C, ls_, lab in ((ctrl.compliance(), "-", f"tau = {per_leg:g} N m/leg"),
+                            (ctrl_paper.compliance(), "--", None)):
+            e = C @ circle
+            ax.plot(e[1], e[0], ls_, color=c, label=lab)           # x: FE, y: RUD
+        theta = ctrl.step((0, 0, 0), lam=lam)
+        q1, _, _ = ctrl.kinematics_at(u0)
+        delta = q1 - theta[:3]
+        torques.append(-2 * params.spring.K * np.sinh(delta / params.spring.delta0))
+        stiff.append(np.linalg.eigvalsh(ctrl.stiffness()).mean())
+    ax.set_aspect("equal")
+    ax.set_xlabel("FE compliance direction, rad/(N m)")
+    ax.set_ylabel("RUD compliance direction, rad/(N m)")
+    ax.set_title(f"Fig. 3a: compliance at the central posture ({params.name})", fontsize=9)
+    ax.text(0.02, 0.02, "solid: complete stiffness; dashed: paper's J_a^T S_s J_a\n"
+            "human C_h (Pando et al. 2014): no numeric values found offline, not shown",
+            transform=ax.transAxes, fontsize=6.5, va="bottom")
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    pa = out_dir / f"fig3a_compliance_{params.name}.png"
+    fig.savefig(pa, dpi=100)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(4.6, 3.2))
+    torques = np.array(torques)
+    x = np.arange(len(LEVELS_PER_LEG))
+    for k, name in enumerate("ABC"):
+        ax.bar(x + (k - 1) * 0.25, torques[:, k], width=0.25, label=f"leg {name}")
+    ax.set_xticks(x, [f"{s:.3g} N m/rad" for s in stiff], fontsize=7)
+    ax.set_xlabel("coupler stiffness (mean eigenvalue) at the central posture")
+    ax.set_ylabel("elastic torque tau_s, N m")
+    ax.set_title(f"Fig. 3b: elastic torque of the four levels ({params.name})", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    pb = out_dir / f"fig3b_elastic_torque_{params.name}.png"
+    fig.savefig(pb, dpi=100)
+    plt.close(fig)
+    return pa, pb
+
+
+def figure_3c(params, runs: dict, res: dict, out_dir: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    ls, hs = runs["ls"], runs["hs"]
+    for j, name, color in ((1, "FE", "tab:blue"), (0, "RUD", "tab:red")):
+        ax.plot(ls["t"], ls["ref"][:, j], "-", color=color, lw=1.0, label=f"{name} reference")
+        ax.plot(ls["t"], ls["posture"][:, j], "--", color=color, lw=1.2, label=f"{name} LS")
+        ax.plot(hs["t"], hs["posture"][:, j], "-", marker="D", markersize=3, markevery=10, color=color, lw=0.6,
+                label=f"{name} HS")
+    ax.axvline(LOAD_TIME, color="k", lw=0.6, ls=":")
+    ax.text(LOAD_TIME, ax.get_ylim()[1], " 1.5 kg load", fontsize=7, va="top")
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("posture, rad")
+    ax.set_title(f"Fig. 3c ({params.name}): RMS error LS {res['rms_error_ls']:.3g} rad, HS {res['rms_error_hs']:.3g} rad;"
+                 f" RMS torque LS {res['rms_torque_ls']:.3g}, HS {res['rms_torque_hs']:.3g} N m", fontsize=7.5)
+    ax.legend(fontsize=6.5, ncol=2, loc="lower left")
+    fig.tight_layout()
+    path = out_dir / f"fig3c_load_{params.name}.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def run(out: str | Path, quick: bool = False, presets=PRESETS, gravity_compensation: bool = True) -> dict:
+    """Regenerate figures and ``results.json`` into ``out``; returns the results."""
+    out_dir = Path(out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    duration = 1.5 if quick else 4.0
+    results: dict = {
+        "paper": PAPER,
+        "choices": {
+            "ls": f"internal torque with per-leg elastic torque {LS_PER_LEG} N m at rest (lam = {per_leg_to_lambda(LS_PER_LEG):.4f} N m)",
+            "hs": f"internal torque with per-leg elastic torque {HS_PER_LEG} N m at rest (lam = {per_leg_to_lambda(HS_PER_LEG):.4f} N m)",
+            "stiffness_levels_per_leg_N_m": list(LEVELS_PER_LEG),
+            "gravity": "each preset's environment.gravity, on the whole device",
+            "load": f"{LOAD_MASS} kg x gravity as a force at the hand point from t = {LOAD_TIME} s (sim.apply_wrench)",
+            "gravity_compensation": ("controller feed-forward of the hand and coupler weight (the load is not "
+                                     "compensated)") if gravity_compensation else "off (the paper's controller)",
+            "trajectory": "RUD = 0.15 sin(2 pi t / 2 s), FE = 0.3 sin(2 pi t / 4 s), PS = 0 (rad)",
+            "duration_s": duration, "control_dt_s": CONTROL_DT,
+            "rms_error": "RMS over control samples of |(RUD, FE) - reference| (rad)",
+            "rms_torque": "RMS over control samples and the three legs of the spring torque (N m)",
+            "human_compliance": "Pando et al. 2014 values not found offline; not shown",
+        },
+        "quick": quick,
+        "machine": f"{platform.node()} ({platform.machine()}), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
+    }
+    figures = []
+    for name in presets:
+        params = load_params(name)
+        res, runs = _preset_results(params, duration, gravity_compensation)
+        results[name] = res
+        figures += [str(p) for p in figure_3ab(params, out_dir)]
+        figures.append(str(figure_3c(params, runs, res, out_dir)))
+    default = results.get("paper")
+    if default is not None:
+        results["paper_implied_load"] = implied_load_scenario(load_params("paper"), duration)
+        results["criteria"] = {
+            "error_ratio_ls_over_hs": default["error_ratio_ls_over_hs"],
+            "torque_ratio_hs_over_ls": default["torque_ratio_hs_over_ls"],
+            "required_min": CRITERION_RATIO,
+            "passed": bool(default["error_ratio_ls_over_hs"] >= CRITERION_RATIO
+                           and default["torque_ratio_hs_over_ls"] >= CRITERION_RATIO),
+        }
+    results["figures"] = [Path(f).name for f in figures]
+    (out_dir / "results.json").write_text(json.dumps(results, indent=2))
+    return results
+
+
+def _table(results: dict, presets) -> str:
+    rows = ["| quantity | paper | " + " | ".join(presets) + " |", "|---|---|" + "---|" * len(presets)]
+    for key, unit in (("rms_error_ls", "rad"), ("rms_error_hs", "rad"), ("rms_torque_ls", "N m"),
+                      ("rms_torque_hs", "N m")):
+        rows.append(f"| {key} ({unit}) | {PAPER[key]:g} | " + " | ".join(f"{results[p][key]:.3g}" for p in presets) + " |")
+    for key, paper in (("error_ratio_ls_over_hs", PAPER["rms_error_ls"] / PAPER["rms_error_hs"]),
+                       ("torque_ratio_hs_over_ls", PAPER["rms_torque_hs"] / PAPER["rms_torque_ls"])):
+        rows.append(f"| {key} | {paper:.3g} | " + " | ".join(f"{results[p][key]:.3g}" for p in presets) + " |")
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="vswrist reproduce", description=__doc__.split("\n")[0])
+    parser.add_argument("--out", required=True, help="output directory for the figures and results.json")
+    parser.add_argument("--quick", action="store_true", help="reduced run (1.5 s trials) for the test suite")
+    parser.add_argument("--presets", nargs="+", default=list(PRESETS), choices=list(PRESETS))
+    parser.add_argument("--no-gravity-compensation", action="store_true",
+                        help="run the paper's controller without the hand-weight feed-forward")
+    args = parser.parse_args(argv)
+    results = run(args.out, quick=args.quick, presets=args.presets,
+                  gravity_compensation=not args.no_gravity_compensation)
+    print(_table(results, args.presets))
+    if "criteria" in results:
+        c = results["criteria"]
+        print(f"criteria (default preset, ratios >= {c['required_min']:g}): error ratio {c['error_ratio_ls_over_hs']:.3g}, "
+              f"torque ratio {c['torque_ratio_hs_over_ls']:.3g} -> {'PASS' if c['passed'] else 'FAIL'}")
+    print(f"figures and results.json in {args.out}")
+    return 0
