@@ -308,3 +308,22 @@ def test_device_randomisation_rebuilds_with_scaled_springs():
     assert u.params.spring.K == pytest.approx(1.5 * u.nominal_params.spring.K)
     assert u.sim.params.spring.K == pytest.approx(1.5 * u.nominal_params.spring.K)
     assert u.ctrl.params.spring.K == u.nominal_params.spring.K  # the controller keeps the nominal model
+
+
+def test_diverged_physics_terminates_with_penalty():
+    """If the simulator reports divergence, the episode terminates with the termination term, from a finite state."""
+    from vswrist_gym.sim import SimulationError
+
+    env = make("VSWrist/Drill-v0")
+    u = env.unwrapped
+    env.reset(seed=0)
+
+    def boom(duration_s):
+        raise SimulationError("test: unstable")
+
+    u.sim.step = boom
+    obs, r, term, trunc, info = env.step(baseline_action(env))
+    assert term and not trunc
+    assert info["reward_termination"] == -u.reward_weights["termination"]
+    assert "unstable" in info["simulation_error"]
+    assert env.observation_space.contains(obs) and np.isfinite(r)

@@ -33,7 +33,7 @@ from .config import SCALE_TERMS, EnvConfigError, load_env_config, validate_task
 from .spaces import ObsTerm, PostureMap, StiffnessMap, check_action, wrap_angle
 
 DEVICE_TERMS = ("spring_K", "spring_delta0", "motor_time_constant", "link_mass", "hand_mass", "damping")
-COMMON_REWARD_TERMS = ("tracking", "energy", "action_rate")
+COMMON_REWARD_TERMS = ("tracking", "energy", "action_rate", "termination")
 
 
 def _import_sim():
@@ -87,6 +87,8 @@ class VSWristEnv(gym.Env):
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.ctrl_dt)))
 
         self._WristSim = _import_sim()
+        from ..sim import SimulationError
+        self._SimulationError = SimulationError
         self._build_sim(self.nominal_params)
         self.ctrl = _import_controller()(params=self.nominal_params, dt=self.ctrl_dt,
                                          gravity_compensation=cfg["gravity_compensation"])
@@ -121,6 +123,7 @@ class VSWristEnv(gym.Env):
             self.obs_slices[t.name] = slice(i, i + t.size)
             i += t.size
         self.obs_size = i
+        self._obs_plan = [(self.obs_slices[t.name].start, self.obs_slices[t.name].stop, t.fn) for t in self.obs_terms]
         bound = lambda b, t: np.broadcast_to(np.asarray(b, dtype=np.float32), (t.size,))  # noqa: E731
         self._obs_low = np.concatenate([bound(t.low, t) for t in self.obs_terms]).astype(np.float32)
         self._obs_high = np.concatenate([bound(t.high, t) for t in self.obs_terms]).astype(np.float32)
@@ -205,22 +208,23 @@ class VSWristEnv(gym.Env):
                     -100.0, 100.0),
             ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", lambda: self.sim.motor_angles(),
                     -two_pi, two_pi),
-            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", lambda: self._defl.copy(),
+            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", lambda: self._defl,
                     -math.pi, math.pi),
-            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", lambda: self.sim.spring_torques(),
+            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", self._obs_spring_torques,
                     -tau_bound, tau_bound),
-            ObsTerm("stiffness", 3, "N m/rad", "commanded coupler stiffness (RUD-RUD, RUD-FE, FE-FE)",
+            ObsTerm("stiffness", 3, "N m/rad", "coupler stiffness of the springs as they are, J_a^T diag(sigma_s(delta)) "
+                    "J_a at the measured posture (RUD-RUD, RUD-FE, FE-FE; paper's formula, no load term)",
                     self._obs_stiffness, -sig_bound, sig_bound),
-            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: np.array([self.ctrl.lam]),
+            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: self.ctrl.lam,
                     -lam_bound, lam_bound),
-            ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action.copy(), -1.0, 1.0),
-            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target.copy(), pl, ph),
+            ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action, -1.0, 1.0),
+            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target, pl, ph),
             ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)",
                     self._obs_wrench, np.array([-1e3] * 3 + [-1e2] * 3), np.array([1e3] * 3 + [1e2] * 3)),
             ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (with noise)",
                     self._obs_contact, 0.0, 1e4),
             ObsTerm("phase", 1, "-", "elapsed fraction of the episode",
-                    lambda: np.array([self._step / self.episode_steps]), 0.0, 1.0),
+                    lambda: self._step / self.episode_steps, 0.0, 1.0),
         ]
         out = {t.name: t for t in terms}
         for t in self._task_obs_terms():
@@ -230,42 +234,50 @@ class VSWristEnv(gym.Env):
     def _task_obs_terms(self) -> list[ObsTerm]:
         return []
 
-    def _noise(self, key: str, n: int) -> np.ndarray:
-        if self._noise_std is None or self._noise_std[key] == 0.0:
-            return 0.0
-        return self.np_random.normal(0.0, self._noise_std[key], n)
+    # sensor noise: one draw per observation, laid out as posture(3) posture_rate(3) force(3) torque(3) contact(1)
+    _NOISE_LAYOUT = ("posture",) * 3 + ("posture_rate",) * 3 + ("force",) * 3 + ("torque",) * 3 + ("force",)
+
+    def _draw_noise(self) -> None:
+        self._nz = None if self._noise_std is None else self.np_random.normal(0.0, 1.0, 13) * self._noise_scale
 
     def _obs_posture(self):
-        return self._posture + self._noise("posture", 3)
+        return self._posture if self._nz is None else self._posture + self._nz[0:3]
 
     def _obs_posture_rate(self):
-        return self.sim.posture_rate() + self._noise("posture_rate", 3)
+        r = self.sim.posture_rate()
+        return r if self._nz is None else r + self._nz[3:6]
 
     def _obs_wrench(self):
-        w = np.array(self.sim.tool_wrench(), dtype=float)
-        if self._noise_std is not None:
-            w[:3] += self._noise("force", 3)
-            w[3:] += self._noise("torque", 3)
-        return w
+        w = self.sim.tool_wrench()
+        return w if self._nz is None else w + self._nz[6:12]
 
     def _obs_contact(self):
-        noisy = self._contact + (self._noise("force", 1)[0] if self._noise_std is not None
-                                 and self._noise_std["force"] > 0 else 0.0)
-        return np.array([max(noisy, 0.0)])  # a touch sensor never reads a pull
+        c = self._contact if self._nz is None else self._contact + self._nz[12]
+        return c if c > 0.0 else 0.0  # a touch sensor never reads a pull
+
+    def _obs_spring_torques(self):
+        s = self.params.spring
+        return -2.0 * s.K * np.sinh(self._defl / s.delta0)
 
     def _obs_stiffness(self):
-        S = self.ctrl.stiffness()
+        """The paper's J_a^T Sigma_s J_a from the measured deflections: the stiffness the springs give now
+        (loads included), cheap (closed-form J_a, no Hessian); the ~13 % load term is left out."""
+        _, Ja, _ = self.ctrl.kinematics_at(self._posture[:2])
+        s = self.params.spring
+        sigma = (2.0 * s.K / s.delta0) * np.cosh(self._defl / s.delta0)
+        S = Ja.T @ (sigma[:, None] * Ja)
         return np.array([S[0, 0], S[0, 1], S[1, 1]])
 
     def _raw_observation(self) -> np.ndarray:
-        obs = np.empty(self.obs_size, dtype=np.float32)
-        for t in self.obs_terms:
-            obs[self.obs_slices[t.name]] = t.fn()
+        """All terms written into one new float64 array (so no term is ever a view of simulator memory)."""
+        obs = np.empty(self.obs_size)
+        for a, b, fn in self._obs_plan:
+            obs[a:b] = fn()
         return obs
 
     def _observation(self):
-        obs = self._raw_observation()
-        np.clip(obs, self._obs_low, self._obs_high, out=obs)
+        self._draw_noise()
+        obs = np.clip(self._raw_observation(), self._obs_low, self._obs_high).astype(np.float32)
         if self.cfg["obs_mode"] == "dict":
             return {t.name: obs[self.obs_slices[t.name]].copy() for t in self.obs_terms}
         return obs
@@ -320,6 +332,7 @@ class VSWristEnv(gym.Env):
         self._peak_contact = 0.0
         self._sum_contact_sq = 0.0
         self._noise_std = None
+        self._nz = None
         self._latency = 0.0
         self._theta_prev = None
         self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
@@ -356,6 +369,8 @@ class VSWristEnv(gym.Env):
         noise = rnd["sensor_noise"]
         self._noise_std = {k: float(noise[k]) for k in ("posture", "posture_rate", "force", "torque")} \
             if noise["enabled"] else None
+        if self._noise_std is not None:
+            self._noise_scale = np.array([self._noise_std[k] for k in self._NOISE_LAYOUT])
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -379,20 +394,29 @@ class VSWristEnv(gym.Env):
         a = np.clip(a, -1.0, 1.0)
         theta = self._motor_refs(a)
         self._before_physics(self._t)
-        if self._latency > 0.0 and self._theta_prev is not None:
-            self.sim.step(self._latency)
-            self.sim.set_motor_references(theta)
-            self.sim.step(self.ctrl_dt - self._latency)
-        else:
-            self.sim.set_motor_references(theta)
-            self.sim.step(self.ctrl_dt)
+        failure = None
+        try:
+            if self._latency > 0.0 and self._theta_prev is not None:
+                self.sim.step(self._latency)
+                self.sim.set_motor_references(theta)
+                self.sim.step(self.ctrl_dt - self._latency)
+            else:
+                self.sim.set_motor_references(theta)
+                self.sim.step(self.ctrl_dt)
+        except self._SimulationError as exc:
+            failure = str(exc)
         self._theta_prev = theta
         self._step += 1
         self._t = self._step * self.ctrl_dt
         self._measure()
-        if not np.isfinite(self._posture).all():
-            raise RuntimeError(f"the simulation diverged at t = {self._t:.3f} s (posture {self._posture}); "
-                               f"check the parameters and the physics timestep")
+        if failure is None and not (np.isfinite(self._posture).all() and np.isfinite(self._defl).all()):
+            failure = f"non-finite state at t = {self._t:.3f} s"
+        if failure is not None:
+            # the physics diverged (MuJoCo resets its state when it does): end the episode with the
+            # termination penalty, from a clean, finite state so that the last observation is valid
+            self.sim.reset()
+            self.sim.apply_wrench(np.zeros(3), np.zeros(3))
+            self._measure()
         self._target = self._reference(self._t)
         self._peak_contact = max(self._peak_contact, self._contact)
         self._sum_contact_sq += self._contact * self._contact
@@ -407,6 +431,7 @@ class VSWristEnv(gym.Env):
             "tracking": -float(np.sqrt(np.sum(self._tracking_error(err) ** 2))) / sc["tracking"],
             "energy": -energy / sc["energy"],
             "action_rate": -float(np.sum((a - self._prev_action) ** 2)) / a.size,
+            "termination": -1.0 if failure is not None else 0.0,
         }
         raw.update(self._task_reward_terms(err))
         weighted = {f"reward_{k}": w * raw[k] for k, w in self.reward_weights.items()}
@@ -414,11 +439,14 @@ class VSWristEnv(gym.Env):
         for v in weighted.values():
             reward += v
         self._prev_action = a.astype(np.float32)
-        truncated = self._step >= self.episode_steps
+        terminated = failure is not None
+        truncated = not terminated and self._step >= self.episode_steps
         obs = self._observation()
         info = self._info(weighted, final=truncated)
         info["posture_error_vec"] = err
-        return obs, float(reward), False, truncated, info
+        if terminated:
+            info["simulation_error"] = failure
+        return obs, float(reward), terminated, truncated, info
 
     def _measure(self) -> None:
         """Read the simulator once per step (``posture()`` also brings its sensors up to date)."""
@@ -558,7 +586,9 @@ class VSWristEnv(gym.Env):
     def __getstate__(self):
         """Pickle the settings and the full episode state; MuJoCo objects are rebuilt on load."""
         state = {k: v for k, v in self.__dict__.items()
-                 if k not in ("sim", "model", "data", "_renderer", "_viewer", "_WristSim", "_terms", "obs_terms")}
+                 if k not in ("sim", "model", "data", "_renderer", "_viewer", "_WristSim", "_terms", "obs_terms",
+                              "_SimulationError",
+                              "_obs_plan")}
         state["_sim_state"] = self.sim.get_state()
         state["_model_mutable"] = (self.model.body_mass.copy(), self.model.body_inertia.copy(),
                                    self.model.geom_friction.copy())
@@ -569,6 +599,8 @@ class VSWristEnv(gym.Env):
         mass, inertia, friction = state.pop("_model_mutable")
         self.__dict__.update(state)
         self._WristSim = _import_sim()
+        from ..sim import SimulationError
+        self._SimulationError = SimulationError
         self._renderer = None
         self._viewer = None
         self.sim = self._WristSim(params=self.params, scene_fn=self._full_scene)
@@ -583,3 +615,4 @@ class VSWristEnv(gym.Env):
         self.sim.set_state(sim_state)
         self._terms = self._obs_terms()
         self.obs_terms = [self._terms[n] for n in self.cfg["observation"]]
+        self._obs_plan = [(self.obs_slices[t.name].start, self.obs_slices[t.name].stop, t.fn) for t in self.obs_terms]

@@ -1,0 +1,209 @@
+"""``vswrist bench-env``: environment speed on one core, against Gymnasium's ``Ant-v5`` measured in the same run.
+
+For every task (default control rate, default config) it reports:
+
+* env steps/s on one core (process pinned to one CPU), random actions drawn beforehand, resets included;
+* the physics-alone share: the time spent inside ``WristSim.step`` (springs + motors + ``mj_step`` over the
+  control period) during that same run, so the ratio ``env step / physics`` is measured on identical states;
+* the same for ``Ant-v5`` (its ``mj_step`` calls timed the same way), as the reference;
+* optionally (``--vec``) the scaling with stable-baselines3's ``SubprocVecEnv`` on 1 and 2 worker processes.
+
+Each figure is the median of ``--repeats`` runs. Speeds depend on the machine and on what else runs on it;
+quote them with the date and the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from datetime import datetime, timezone
+
+import numpy as np
+
+TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
+
+
+def _pin_one_core() -> int | None:
+    try:
+        cpu = sorted(os.sched_getaffinity(0))[-1]
+        os.sched_setaffinity(0, {cpu})
+        return cpu
+    except (AttributeError, OSError):
+        return None
+
+
+class _Timer:
+    """Wraps a callable and accumulates the wall time spent in it."""
+
+    def __init__(self, fn):
+        self.fn, self.total = fn, 0.0
+
+    def __call__(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return self.fn(*args, **kwargs)
+        finally:
+            self.total += time.perf_counter() - t0
+
+
+def _run(env, actions, physics: _Timer) -> tuple[float, float]:
+    """Steps through ``actions`` (resetting at episode ends); returns (env steps/s, physics share of time)."""
+    env.reset(seed=0)
+    physics.total = 0.0
+    t0 = time.perf_counter()
+    for a in actions:
+        _, _, term, trunc, _ = env.step(a)
+        if term or trunc:
+            env.reset()
+    wall = time.perf_counter() - t0
+    return len(actions) / wall, physics.total / wall
+
+
+def bench_task(name: str, steps: int, repeats: int) -> dict:
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401  (registers the ids)
+
+    env = gym.make(f"VSWrist/{name}-v0")
+    u = env.unwrapped
+    timer = _Timer(u.sim.step)
+    u.sim.step = timer
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps,) + env.action_space.shape).astype(np.float32)
+    _run(env, actions[: min(200, steps)], timer)  # warm-up
+    runs = [_run(env, actions, timer) for _ in range(repeats)]
+    sps = statistics.median(r[0] for r in runs)
+    share = statistics.median(r[1] for r in runs)
+    out = {"task": name, "steps_per_s": sps, "physics_share": share, "overhead_ratio": 1.0 / share,
+           "ctrl_hz": 1.0 / u.ctrl_dt, "substeps": u.n_substeps, "physics_steps_per_s": sps * u.n_substeps}
+    env.close()
+    return out
+
+
+def bench_ant(steps: int, repeats: int) -> dict | None:
+    import gymnasium as gym
+    import mujoco
+
+    try:
+        env = gym.make("Ant-v5")
+    except Exception as exc:  # noqa: BLE001 - report, do not fail the benchmark
+        return {"task": "Ant-v5", "error": str(exc)}
+    u = env.unwrapped
+    # Gymnasium's MujocoEnv calls mujoco.mj_step(model, data, nstep=frame_skip) from its module namespace
+    import gymnasium.envs.mujoco.mujoco_env as me
+
+    timer = _Timer(mujoco.mj_step)
+    original = me.mujoco.mj_step
+    me.mujoco.mj_step = timer
+    try:
+        rng = np.random.default_rng(0)
+        actions = rng.uniform(env.action_space.low, env.action_space.high,
+                              (steps,) + env.action_space.shape).astype(np.float32)
+        _run(env, actions[: min(200, steps)], timer)
+        runs = [_run(env, actions, timer) for _ in range(repeats)]
+    finally:
+        me.mujoco.mj_step = original
+    sps = statistics.median(r[0] for r in runs)
+    share = statistics.median(r[1] for r in runs)
+    env.close()
+    return {"task": "Ant-v5", "steps_per_s": sps, "physics_share": share, "overhead_ratio": 1.0 / share,
+            "ctrl_hz": 1.0 / u.dt, "substeps": u.frame_skip, "physics_steps_per_s": sps * u.frame_skip}
+
+
+def _make_env(name: str):
+    def thunk():
+        import gymnasium as gym
+
+        import vswrist_gym  # noqa: F401
+
+        return gym.make(f"VSWrist/{name}-v0")
+    return thunk
+
+
+def bench_vec(name: str, steps: int) -> dict:
+    """Steps/s of SB3's SubprocVecEnv with 1 and 2 workers (total env steps over all workers)."""
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    out = {"task": name}
+    for n in (1, 2):
+        venv = SubprocVecEnv([_make_env(name) for _ in range(n)], start_method="fork")
+        try:
+            venv.seed(0)
+            venv.reset()
+            rng = np.random.default_rng(0)
+            acts = rng.uniform(-1, 1, (steps // n, n, venv.action_space.shape[0])).astype(np.float32)
+            for a in acts[:50]:
+                venv.step(a)
+            t0 = time.perf_counter()
+            for a in acts:
+                venv.step(a)
+            out[f"workers_{n}"] = n * len(acts) / (time.perf_counter() - t0)
+        finally:
+            venv.close()
+    out["scaling_2_over_1"] = out["workers_2"] / out["workers_1"]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="vswrist bench-env", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    ap.add_argument("--steps", type=int, default=3000, help="env steps per timed run (default 3000)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs per environment; the median is reported")
+    ap.add_argument("--no-ant", action="store_true", help="skip the Ant-v5 reference")
+    ap.add_argument("--vec", action="store_true", help="also measure SubprocVecEnv scaling on 1 and 2 workers")
+    ap.add_argument("--json", metavar="PATH", help="write the results as JSON")
+    args = ap.parse_args(argv)
+    if args.steps < 10 or args.repeats < 1:
+        ap.error("--steps must be >= 10 and --repeats >= 1")
+
+    cpu = _pin_one_core()
+    results = {"date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "machine": platform.node(),
+               "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+               "pinned_cpu": cpu, "steps": args.steps, "repeats": args.repeats, "envs": []}
+    print(f"vswrist bench-env: {args.steps} steps x {args.repeats} runs (median), pinned to CPU {cpu}, "
+          f"{results['date']}, {results['cpus']} CPUs")
+    ant = None if args.no_ant else bench_ant(args.steps, args.repeats)
+    if ant is not None:
+        results["ant"] = ant
+    header = f"{'env':<18}{'steps/s':>10}{'x Ant-v5':>10}{'ctrl Hz':>9}{'substeps':>10}{'env/physics':>13}"
+    print(header)
+    print("-" * len(header))
+    if ant is not None and "error" not in ant:
+        print(f"{'Ant-v5':<18}{ant['steps_per_s']:>10.0f}{1.0:>10.2f}{ant['ctrl_hz']:>9.0f}{ant['substeps']:>10d}"
+              f"{ant['overhead_ratio']:>13.2f}")
+    elif ant is not None:
+        print(f"Ant-v5 unavailable: {ant['error']}")
+    for name in args.tasks:
+        r = bench_task(name, args.steps, args.repeats)
+        if ant is not None and "error" not in ant:
+            r["vs_ant"] = r["steps_per_s"] / ant["steps_per_s"]
+        results["envs"].append(r)
+        rel = f"{r['vs_ant']:.2f}" if "vs_ant" in r else "-"
+        print(f"{'VSWrist/' + name:<18}{r['steps_per_s']:>10.0f}{rel:>10}{r['ctrl_hz']:>9.0f}{r['substeps']:>10d}"
+              f"{r['overhead_ratio']:>13.2f}")
+    print("env/physics: wall time of env.step over the time spent in the physics step of the same run "
+          "(targets: >= Ant-v5, >= 2000 steps/s, <= 1.25)")
+    if args.vec:
+        try:
+            os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+        except (AttributeError, OSError):
+            pass
+        results["vec"] = []
+        print(f"\nSubprocVecEnv (all CPUs): {'task':<12}{'1 worker':>10}{'2 workers':>11}{'scaling':>9}")
+        for name in args.tasks:
+            v = bench_vec(name, args.steps)
+            results["vec"].append(v)
+            print(f"{'':<26}{name:<12}{v['workers_1']:>10.0f}{v['workers_2']:>11.0f}{v['scaling_2_over_1']:>9.2f}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(results, fh, indent=2)
+        print(f"results written to {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
