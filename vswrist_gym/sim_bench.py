@@ -48,7 +48,8 @@ def _time_full(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: floa
     return wall / (n_ctrl * int(round(control_dt / sim.timestep)))
 
 
-def _time_paired(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: float) -> tuple[float, float]:
+def _time_paired(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: float
+                 ) -> tuple[float, float, list[float]]:
     """Wall seconds per substep (full, bare), alternating window by window so that both see the same load
     from other processes. Full: ``WristSim.step`` (springs + motors in the callbacks). Bare: ``mj_step`` of the
     same model and data from the same state, callbacks removed; then the full run continues where it was."""
@@ -60,22 +61,26 @@ def _time_paired(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: fl
     n_ctrl = int(round(seconds / control_dt))
     per_ref = int(round(0.5 / control_dt))
     full = bare = 0.0
+    ratios = []
     for k in range(n_ctrl):
         if k % per_ref == 0:
             sim.set_motor_references(refs[(k // per_ref) % len(refs)])
         before = sim.get_state()
         t0 = time.perf_counter()
         sim.step(control_dt)
-        full += time.perf_counter() - t0
+        t_full = time.perf_counter() - t0
         after = sim.get_state()
         native.uninstall()
         mujoco.mj_setState(m, d, before, spec)
         t0 = time.perf_counter()
         mujoco.mj_step(m, d, nsub)
-        bare += time.perf_counter() - t0
+        t_bare = time.perf_counter() - t0
         native.install(backend or "auto")
         mujoco.mj_setState(m, d, after, spec)
-    return full / (n_ctrl * nsub), bare / (n_ctrl * nsub)
+        full += t_full
+        bare += t_bare
+        ratios.append(t_full / t_bare)
+    return full / (n_ctrl * nsub), bare / (n_ctrl * nsub), ratios
 
 
 def _time_python_loop(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: float) -> float:
@@ -117,17 +122,18 @@ def speed(preset: str, seconds: float, rounds: int, control_dt: float, with_pyth
                                    "python_callbacks": []}
     for _ in range(rounds):  # interleaved, so that load from other processes hits all alike; best of rounds
         native.install("c")
-        full, bare = _time_paired(sim, refs, control_dt, seconds)
+        full, bare, ratios = _time_paired(sim, refs, control_dt, seconds)
         res["full_c"].append(full)
         res["bare"].append(bare)
-        res["ratio"].append(full / bare)
+        res["ratio"] += ratios
         if with_python:
             res["python_loop"].append(_time_python_loop(sim, refs, control_dt / 5, seconds / 5))
             native.install("python")
             res["python_callbacks"].append(_time_full(sim, refs, control_dt, seconds / 5))
             native.install("c")
     out = {k: min(v) for k, v in res.items() if v}
-    out["ratio"] = float(np.median(res["ratio"]))  # of the paired windows, round by round
+    out["ratio"] = float(np.median(res["ratio"]))  # median over all paired control windows
+    out["ratio_iqr"] = tuple(np.percentile(res["ratio"], [25, 75]))
     out["timestep"] = sim.timestep
     return out
 
@@ -163,14 +169,24 @@ def stiffness_error(params, u, frac: float) -> tuple[float, float]:
             float(np.linalg.norm(S_paper - S) / np.linalg.norm(S)))
 
 
-def closure_under_random_references(params, seconds: float = 10.0) -> float:
+def closure_under_random_references(params, posture_rate: float | None, seconds: float = 10.0,
+                                    seed: int = 1) -> float:
+    """Worst loop-closure error over random posture targets (new one every 0.5 s) at the largest preload,
+    gravity on. ``posture_rate`` (rad/s) limits how fast the commanded posture moves; None: jumps."""
     sim = WristSim(params)
-    refs = _reference_schedule(sim, 64, seed=1)
-    sim.reset(lam=lambda_range(np.zeros(2), params)[1])
-    worst = 0.0
+    rng = np.random.default_rng(seed)
+    u = np.zeros(2)
+    sim.reset(u=u, lam=lambda_range(u, params)[1])
+    worst, target, ps = 0.0, u, 0.0
     for k in range(int(seconds / 0.02)):
         if k % 25 == 0:
-            sim.set_motor_references(refs[k // 25])
+            target, ps = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
+        if posture_rate is None:
+            u = target
+        else:
+            step = target - u
+            u = u + step * min(1.0, posture_rate * 0.02 / max(float(np.linalg.norm(step)), 1e-12))
+        sim.set_motor_references(np.append(motor_references(u, lambda_range(u, params)[1], params), ps))
         sim.step(0.02)
         worst = max(worst, sim.loop_closure_error())
     return worst
@@ -196,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{preset}] timestep {dt * 1e3:g} ms, step({args.control_dt:g} s) = {round(args.control_dt / dt)} substeps")
         print(f"  bare mj_step                         {r['bare'] * 1e6:8.2f} us   {1 / r['bare']:10.0f} substeps/s")
         print(f"  full, C callbacks (default)          {r['full_c'] * 1e6:8.2f} us   {1 / r['full_c']:10.0f} substeps/s   "
-              f"ratio {r['ratio']:.3f} (median of paired rounds)")
+              f"ratio {r['ratio']:.3f} (median of paired windows; quartiles {r['ratio_iqr'][0]:.3f}-"
+              f"{r['ratio_iqr'][1]:.3f})")
         rows = [("full, Python callbacks (fallback)", "python_callbacks"),
                 ("Python loop, mj_step per substep", "python_loop")]
         for label, key in rows:
@@ -206,16 +223,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  real-time factor (default path)      {dt / r['full_c']:.0f}x\n")
     if args.sweep:
         print("timestep sweep (constraint time constant = 2 substeps): stiffness error vs analytic (max over 3 cases),")
-        print("paper-formula error, worst loop closure in 10 s of random references at the largest preload, speed")
+        print("paper-formula error, worst loop closure in 10 s of random posture references at the largest preload")
+        print("(commanded posture moving at <= 3 rad/s; in brackets: jumping), speed")
         for preset in presets:
             base = load_params(preset)
             for dt in (0.0005, 0.001, 0.002):
                 p = base.replace(simulation={"timestep": dt, "constraint_timeconst": 2 * dt})
                 errs = [stiffness_error(p, u, f) for u, f in (((0.0, 0.0), 0.9), ((0.5, 0.4), -0.8), ((-0.6, -0.5), 0.3))]
-                closure = closure_under_random_references(p)
+                closure = closure_under_random_references(p, 3.0)
+                closure_jumps = closure_under_random_references(p, None)
                 sim = WristSim(p)
                 per = _time_full(sim, _reference_schedule(sim, 64), 0.02, 2.0)
                 print(f"  [{preset}] dt {dt * 1e3:4.1f} ms  stiffness err {max(e for e, _ in errs):6.2%}  "
                       f"paper formula {min(e for _, e in errs):5.1%}-{max(e for _, e in errs):5.1%}  "
-                      f"closure {closure:.1e}  {1 / per:8.0f} substeps/s  RTF {dt / per:6.0f}x")
+                      f"closure {closure:.1e} (jumps {closure_jumps:.1e})  {1 / per:7.0f} substeps/s  "
+                      f"RTF {dt / per:4.0f}x")
     return 0
