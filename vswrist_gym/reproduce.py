@@ -121,7 +121,7 @@ def _preset_results(params, duration: float, gravity_compensation: bool) -> tupl
     return out, {"ls": ls, "hs": hs}
 
 
-def implied_load_scenario(params, duration: float) -> dict:
+def implied_load_scenario(params, duration: float) -> tuple[dict, dict]:
     """Diagnostic: the paper's numbers imply a load torque of only ~0.015 N m in both trials (stiffness x RMS
     error). Gravity off, a force along -Z_b at the hand point whose torque at the central posture is that
     (force = 0.015 N m / lever): does the controller then show the paper's HS/LS ratios?"""
@@ -135,7 +135,7 @@ def implied_load_scenario(params, duration: float) -> dict:
             "rms_error_ls": ls["rms_error"], "rms_error_hs": hs["rms_error"],
             "rms_torque_ls": ls["rms_torque"], "rms_torque_hs": hs["rms_torque"],
             "error_ratio_ls_over_hs": ls["rms_error"] / hs["rms_error"],
-            "torque_ratio_hs_over_ls": hs["rms_torque"] / ls["rms_torque"]}
+            "torque_ratio_hs_over_ls": hs["rms_torque"] / ls["rms_torque"]}, {"ls": ls, "hs": hs}
 
 
 def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
@@ -149,15 +149,16 @@ def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
     phi = np.linspace(0, 2 * np.pi, 200)
     circle = np.vstack([np.cos(phi), np.sin(phi)])
     colors = plt.cm.viridis(np.linspace(0.0, 0.85, len(LEVELS_PER_LEG)))
-    fig, ax = plt.subplots(figsize=(4.6, 4.2))
+    fig, ax = plt.subplots(figsize=(4.8, 4.8))
     torques, stiff = [], []
     for c, per_leg in zip(colors, LEVELS_PER_LEG):
         lam = per_leg_to_lambda(per_leg)
         ctrl.reset((0, 0, 0), lam=lam)
         ctrl_paper.reset((0, 0, 0), lam=lam)
-        for C, ls_, lab in ((ctrl.compliance(), "-", f"tau = {per_leg:g} N m/leg"),
-                            (ctrl_paper.compliance(), "--", None)):
-            e = C @ circle
+        C = ctrl.compliance()
+        for Cx, ls_, lab in ((C, "-", f"{per_leg:g} N m/leg: C = {np.linalg.eigvalsh(C).mean():.3g} rad/(N m)"),
+                             (ctrl_paper.compliance(), "--", None)):
+            e = Cx @ circle
             ax.plot(e[1], e[0], ls_, color=c, label=lab)           # x: FE, y: RUD
         theta = ctrl.step((0, 0, 0), lam=lam)
         q1, _, _ = ctrl.kinematics_at(u0)
@@ -165,25 +166,24 @@ def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
         torques.append(-2 * params.spring.K * np.sinh(delta / params.spring.delta0))
         stiff.append(np.linalg.eigvalsh(ctrl.stiffness()).mean())
     ax.set_aspect("equal")
-    ax.set_xlabel("FE compliance direction, rad/(N m)")
-    ax.set_ylabel("RUD compliance direction, rad/(N m)")
-    ax.set_title(f"Fig. 3a: compliance at the central posture ({params.name})", fontsize=9)
-    ax.text(0.02, 0.02, "solid: complete stiffness; dashed: paper's J_a^T S_s J_a\n"
-            "human C_h (Pando et al. 2014): no numeric values found offline, not shown",
-            transform=ax.transAxes, fontsize=6.5, va="bottom")
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
+    ax.set_xlabel("FE, rad/(N m)")
+    ax.set_ylabel("RUD, rad/(N m)")
+    ax.set_title(f"Fig. 3a: coupler compliance, central posture ({params.name})", fontsize=9)
+    fig.text(0.01, 0.01, "solid: complete stiffness (with load term); dashed: paper's J_a^T Sigma_s J_a.\n"
+             "Human C_h (Pando et al. 2014): no numeric values found offline, not shown.", fontsize=7, va="bottom")
+    ax.legend(fontsize=6.5, loc="upper right", title="elastic torque per leg", title_fontsize=6.5)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     pa = out_dir / f"fig3a_compliance_{params.name}.png"
     fig.savefig(pa, dpi=100)
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(4.6, 3.2))
+    fig, ax = plt.subplots(figsize=(5.0, 3.4))
     torques = np.array(torques)
     x = np.arange(len(LEVELS_PER_LEG))
     for k, name in enumerate("ABC"):
         ax.bar(x + (k - 1) * 0.25, torques[:, k], width=0.25, label=f"leg {name}")
     ax.set_xticks(x, [f"{s:.3g} N m/rad" for s in stiff], fontsize=7)
-    ax.set_xlabel("coupler stiffness (mean eigenvalue) at the central posture")
+    ax.set_xlabel("coupler stiffness (mean eigenvalue), central posture")
     ax.set_ylabel("elastic torque tau_s, N m")
     ax.set_title(f"Fig. 3b: elastic torque of the four levels ({params.name})", fontsize=9)
     ax.legend(fontsize=7)
@@ -194,7 +194,7 @@ def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
     return pa, pb
 
 
-def figure_3c(params, runs: dict, res: dict, out_dir: Path) -> Path:
+def figure_3c(params, runs: dict, res: dict, out_dir: Path, tag: str = "load", note: str = "1.5 kg load") -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -207,14 +207,14 @@ def figure_3c(params, runs: dict, res: dict, out_dir: Path) -> Path:
         ax.plot(hs["t"], hs["posture"][:, j], "-", marker="D", markersize=3, markevery=10, color=color, lw=0.6,
                 label=f"{name} HS")
     ax.axvline(LOAD_TIME, color="k", lw=0.6, ls=":")
-    ax.text(LOAD_TIME, ax.get_ylim()[1], " 1.5 kg load", fontsize=7, va="top")
+    ax.text(LOAD_TIME, ax.get_ylim()[1], " " + note, fontsize=7, va="top")
     ax.set_xlabel("time, s")
     ax.set_ylabel("posture, rad")
     ax.set_title(f"Fig. 3c ({params.name}): RMS error LS {res['rms_error_ls']:.3g} rad, HS {res['rms_error_hs']:.3g} rad;"
                  f" RMS torque LS {res['rms_torque_ls']:.3g}, HS {res['rms_torque_hs']:.3g} N m", fontsize=7.5)
     ax.legend(fontsize=6.5, ncol=2, loc="lower left")
     fig.tight_layout()
-    path = out_dir / f"fig3c_load_{params.name}.png"
+    path = out_dir / f"fig3c_{tag}_{params.name}.png"
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
@@ -226,7 +226,7 @@ def run(out: str | Path, quick: bool = False, presets=PRESETS, gravity_compensat
     out_dir.mkdir(parents=True, exist_ok=True)
     duration = 1.5 if quick else 4.0
     results: dict = {
-        "paper": PAPER,
+        "paper_reported": PAPER,
         "choices": {
             "ls": f"internal torque with per-leg elastic torque {LS_PER_LEG} N m at rest (lam = {per_leg_to_lambda(LS_PER_LEG):.4f} N m)",
             "hs": f"internal torque with per-leg elastic torque {HS_PER_LEG} N m at rest (lam = {per_leg_to_lambda(HS_PER_LEG):.4f} N m)",
@@ -253,7 +253,12 @@ def run(out: str | Path, quick: bool = False, presets=PRESETS, gravity_compensat
         figures.append(str(figure_3c(params, runs, res, out_dir)))
     default = results.get("paper")
     if default is not None:
-        results["paper_implied_load"] = implied_load_scenario(load_params("paper"), duration)
+        implied, runs = implied_load_scenario(load_params("paper"), duration)
+        results["paper_implied_load"] = implied
+        figures.append(str(figure_3c(load_params("paper"), runs, implied, out_dir, "implied_load",
+                                     f"{IMPLIED_LOAD_TORQUE} N m load, gravity off")))
+        implied["passed"] = bool(implied["error_ratio_ls_over_hs"] >= CRITERION_RATIO
+                                 and implied["torque_ratio_hs_over_ls"] >= CRITERION_RATIO)
         results["criteria"] = {
             "error_ratio_ls_over_hs": default["error_ratio_ls_over_hs"],
             "torque_ratio_hs_over_ls": default["torque_ratio_hs_over_ls"],
@@ -292,5 +297,11 @@ def main(argv: list[str] | None = None) -> int:
         c = results["criteria"]
         print(f"criteria (default preset, ratios >= {c['required_min']:g}): error ratio {c['error_ratio_ls_over_hs']:.3g}, "
               f"torque ratio {c['torque_ratio_hs_over_ls']:.3g} -> {'PASS' if c['passed'] else 'FAIL'}")
+    if "paper_implied_load" in results:
+        d = results["paper_implied_load"]
+        print(f"diagnostic, the load the paper's numbers imply ({d['description']}): RMS error LS "
+              f"{d['rms_error_ls']:.3g} / HS {d['rms_error_hs']:.3g} rad (ratio {d['error_ratio_ls_over_hs']:.3g}), "
+              f"RMS torque LS {d['rms_torque_ls']:.3g} / HS {d['rms_torque_hs']:.3g} N m "
+              f"(ratio {d['torque_ratio_hs_over_ls']:.3g}) -> {'PASS' if d['passed'] else 'FAIL'}")
     print(f"figures and results.json in {args.out}")
     return 0
