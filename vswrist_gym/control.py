@@ -297,3 +297,45 @@ class AnalyticController:
         w = np.array(self._gravity_generalised(ay, az))
         tg = J @ np.linalg.solve(J.T @ J, w)
         return float(tg[0]), float(tg[1]), float(tg[2])
+
+
+def benchmark(params: WristParams | str | None = None, steps: int = 20000) -> dict[str, float]:
+    """Seconds per controller step (internal-torque and compliance modes) and, as the reference measured in
+    the same run, per evaluation of the least-squares path (``kinematics`` J_a and N + ``stiffness.motor_references``)."""
+    import time
+
+    from .kinematics import WristKinematics
+    from .stiffness import coupler_compliance, motor_references
+
+    p = load_params(params)
+    ctrl = AnalyticController(p)
+    kin = WristKinematics(p)
+    rng = np.random.default_rng(0)
+    refs = [(float(a), float(b), 0.1) for a, b in rng.uniform(kin.u_min, kin.u_max, size=(64, 2))]
+    t0 = time.perf_counter()
+    for i in range(steps):
+        ctrl.step(refs[i % 64], lam=0.5)
+    fast = (time.perf_counter() - t0) / steps
+    n_ref = max(steps // 50, 20)
+    t0 = time.perf_counter()
+    for i in range(n_ref):
+        u = np.array(refs[i % 64][:2])
+        kin.actuated_jacobian(u)
+        motor_references(u, 0.5, p)
+    slow = (time.perf_counter() - t0) / n_ref
+    c_ref = coupler_compliance(np.zeros(2), 0.3 * ctrl.lambda_range((0.0, 0.0))[1], p)
+    n_c = max(steps // 20, 20)
+    t0 = time.perf_counter()
+    for i in range(n_c):
+        ctrl.step(refs[i % 64], compliance_ref=c_ref)
+    compliance = (time.perf_counter() - t0) / n_c
+    return {"step_lambda_s": fast, "step_compliance_s": compliance, "least_squares_reference_s": slow,
+            "speedup": slow / fast}
+
+
+if __name__ == "__main__":  # python -m vswrist_gym.control: controller cost against the least-squares path
+    r = benchmark()
+    print(f"AnalyticController.step, internal-torque mode: {r['step_lambda_s'] * 1e6:.1f} us")
+    print(f"AnalyticController.step, compliance mode (posture changes every step): {r['step_compliance_s'] * 1e6:.1f} us")
+    print(f"reference, least-squares J_a + motor_references: {r['least_squares_reference_s'] * 1e6:.1f} us "
+          f"-> fast path {r['speedup']:.0f}x faster")
