@@ -200,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--control-dt", type=float, default=0.02, help="control period of step() calls, s")
     parser.add_argument("--no-python", action="store_true", help="skip the slow Python reference paths")
     parser.add_argument("--sweep", action="store_true", help="also sweep the timestep: accuracy against speed")
+    parser.add_argument("--solvers", action="store_true",
+                        help="also time the full substep under other solvers, Jacobians and integrators")
     args = parser.parse_args(argv)
     presets = [args.params] if args.params else list(PRESETS)
     print(f"vswrist bench-sim  {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC  mujoco {mujoco.__version__}  "
@@ -221,6 +223,32 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  {label:<36} {r[key] * 1e6:8.2f} us   {1 / r[key]:10.0f} substeps/s   "
                       f"ratio {r[key] / r['bare']:.3f}")
         print(f"  real-time factor (default path)      {dt / r['full_c']:.0f}x\n")
+    if args.solvers:
+        print("full substep (C callbacks) under other MuJoCo settings, same motion; best of rounds, "
+              "ratio to the default settings measured alongside")
+        for preset in presets:
+            sim = WristSim(preset)
+            refs = _reference_schedule(sim, 64)
+            opt = sim.model.opt
+            default = (opt.solver, opt.jacobian, opt.integrator)
+            variants = [("default: Newton, dense, implicitfast", default)]
+            for solver in (mujoco.mjtSolver.mjSOL_CG, mujoco.mjtSolver.mjSOL_PGS):
+                variants.append((f"{solver.name[6:]}, dense, implicitfast", (solver, default[1], default[2])))
+            variants.append(("Newton, sparse, implicitfast", (default[0], mujoco.mjtJacobian.mjJAC_SPARSE, default[2])))
+            for integ in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_IMPLICIT,
+                          mujoco.mjtIntegrator.mjINT_RK4):
+                variants.append((f"Newton, dense, {integ.name[6:]}", (default[0], default[1], integ)))
+            native.install("c")
+            for label, (solver, jac, integ) in variants:
+                times, base = [], []
+                for _ in range(args.rounds):
+                    opt.solver, opt.jacobian, opt.integrator = default
+                    base.append(_time_full(sim, refs, args.control_dt, args.seconds / 2))
+                    opt.solver, opt.jacobian, opt.integrator = solver, jac, integ
+                    times.append(_time_full(sim, refs, args.control_dt, args.seconds / 2))
+                opt.solver, opt.jacobian, opt.integrator = default
+                print(f"  [{preset}] {label:<36} {min(times) * 1e6:7.2f} us  ratio {min(times) / min(base):.2f}")
+        print()
     if args.sweep:
         print("timestep sweep (constraint time constant = 2 substeps): stiffness error vs analytic (max over 3 cases),")
         print("paper-formula error, worst loop closure in 10 s of random posture references at the largest preload")

@@ -116,6 +116,14 @@ def compile_library(force: bool = False) -> Path:
     target = _library_path()
     if target.is_file() and not force:
         return target
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=target.parent)
+        probe.close()
+    except OSError:  # read-only home: build in the temporary directory instead
+        target = Path(tempfile.gettempdir()) / f"vswrist_gym_{os.getuid() if hasattr(os, 'getuid') else 0}" / target.name
+        if target.is_file() and not force:
+            return target
     compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
     if compiler is None:
         raise RuntimeError("no C compiler (gcc/cc) found")
