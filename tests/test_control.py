@@ -138,6 +138,25 @@ def test_lm_reaches_a_reachable_compliance_within_one_percent(params, u):
     np.testing.assert_allclose(ctrl.compliance(), c_ref, rtol=0.02, atol=1e-6 * np.abs(c_ref).max())
 
 
+def test_lm_rate_is_the_papers_formula_with_g_and_its_derivative_from_the_analytic_model(params):
+    """d(lam)/dt = -alpha H/(H^2 + nu) G, G = ||C - c_r||_F from ``stiffness``, H = dG/dlam by central differences."""
+    u = np.array([0.2, -0.3])
+    terms = posture_terms(u, params)
+    c_ref = np.array([[0.9, 0.1], [0.05, 1.3]]) * coupler_compliance(u, 0.3 * lambda_range(u, params)[1], params)[0, 0]
+    ctrl = AnalyticController(params)
+    ctrl.reset((u[0], u[1], 0.0))
+
+    def G(lam):
+        return np.linalg.norm(np.linalg.inv(stiffness_from_terms(terms, lam, params)) - c_ref)
+
+    hi = lambda_range(u, params)[1]
+    for lam in (-0.5 * hi, 0.1 * hi, 0.6 * hi):
+        h = 1e-6 * hi
+        H = (G(lam + h) - G(lam - h)) / (2 * h)
+        expected = -params.control.lm_alpha * H / (H * H + params.control.lm_nu) * G(lam)
+        assert ctrl.lm_rate(lam, c_ref) == pytest.approx(expected, rel=1e-5)
+
+
 def _brute_force_minimiser(u, c_ref, params, lo, hi, n=4001):
     """Dense scan of G over [lo, hi], then a second dense scan around the best point."""
     terms = posture_terms(u, params)

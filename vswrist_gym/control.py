@@ -240,13 +240,47 @@ class AnalyticController:
         Written as -alpha <E, dC>/(H^2 + nu) with E = C - c_r, since H G = <E, dC/dlam>: no 0/0 at G = 0.
         """
         key = self._u if u is None else _finite_vector("u", u, 2)
-        c_ref = np.asarray(compliance_ref, dtype=float)
-        S, dS = self._stiffness_and_derivative(self._posture_terms(key), lam)
-        C = np.linalg.inv(S)
-        dC = -C @ dS @ C
-        E = C - c_ref
-        G = math.sqrt(float(np.sum(E * E)))
-        HG = float(np.sum(E * dC))
+        c = np.asarray(compliance_ref, dtype=float)
+        return self._lm_rate(float(lam), self._posture_terms(key), (c[0, 0], c[0, 1], c[1, 0], c[1, 1]))
+
+    def _lm_rate(self, lam: float, terms, c_ref: tuple[float, float, float, float]) -> float:
+        """``lm_rate`` in scalar arithmetic: C and dC symmetric [[a, b], [b, d]], c_ref row-major (4 values)."""
+        Ja, N, Ha, tg = terms
+        K2, d0, tmax = 2.0 * self._K, self._delta0, self._tau_max
+        a = b = d = da = db = dd = 0.0
+        load = self.include_load_term
+        for k in range(3):
+            nk = N[k]
+            tau = lam * nk if tg is None else min(max(lam * nk + tg[k], -tmax), tmax)
+            x = tau / K2
+            root = math.sqrt(1.0 + x * x)
+            sig, dsig = K2 / d0 * root, (x / root) / d0 * nk
+            j0, j1 = Ja[k]
+            a += sig * j0 * j0
+            b += sig * j0 * j1
+            d += sig * j1 * j1
+            da += dsig * j0 * j0
+            db += dsig * j0 * j1
+            dd += dsig * j1 * j1
+            if load:
+                (h00, h01), (_, h11) = Ha[k]
+                a -= tau * h00
+                b -= tau * h01
+                d -= tau * h11
+                da -= nk * h00
+                db -= nk * h01
+                dd -= nk * h11
+        inv_det = 1.0 / (a * d - b * b)
+        ca, cb, cd = d * inv_det, -b * inv_det, a * inv_det            # C = S^-1
+        # dC = -C dS C
+        m00, m01 = ca * da + cb * db, ca * db + cb * dd                   # (C dS) row 0
+        m10, m11 = cb * da + cd * db, cb * db + cd * dd                   # (C dS) row 1
+        dca = -(m00 * ca + m01 * cb)
+        dcb = -(m00 * cb + m01 * cd)
+        dcd = -(m10 * cb + m11 * cd)
+        ea, e01, e10, ed = ca - c_ref[0], cb - c_ref[1], cb - c_ref[2], cd - c_ref[3]
+        G = math.sqrt(ea * ea + e01 * e01 + e10 * e10 + ed * ed)
+        HG = ea * dca + (e01 + e10) * dcb + ed * dcd
         H = HG / G if G > 0.0 else 0.0
         return -self._alpha * HG / (H * H + self._nu)
 
@@ -260,13 +294,17 @@ class AnalyticController:
         """
         lo, hi = bounds
         lam = min(max(self.lam, lo), hi)
+        terms = self._posture_terms(self._u)
+        Ja, N, Ha, tg = terms
+        terms = (Ja.tolist(), N.tolist(), Ha.tolist(), None if tg is None else tg.tolist())
+        c = (float(c_ref[0, 0]), float(c_ref[0, 1]), float(c_ref[1, 0]), float(c_ref[1, 1]))
         remaining = self.dt
         for _ in range(1000):
             if remaining <= 1e-12 * self.dt:
                 break
-            rate = self.lm_rate(lam, c_ref)
+            rate = self._lm_rate(lam, terms, c)
             eps = 1e-7 * max(1.0, abs(lam))
-            slope = (self.lm_rate(lam + eps, c_ref) - rate) / eps
+            slope = (self._lm_rate(lam + eps, terms, c) - rate) / eps
             h = remaining if slope * remaining <= 0.5 else max(0.5 / slope, remaining / 1000.0)
             lam = min(max(lam + h * rate / (1.0 - h * slope), lo), hi)
             remaining -= h
