@@ -18,7 +18,8 @@ def results(tmp_path_factory):
 
 def test_results_hold_every_key_beside_the_papers_numbers(results):
     out, r = results
-    assert r["paper_reported"] == {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
+    assert r["paper_reported"] == {"rms_error_ls": 0.15, "rms_error_hs": 0.007,
+                                   "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
     for preset in ("paper", "paper_knm"):
         for key in ("rms_error_ls", "rms_error_hs", "rms_torque_ls", "rms_torque_hs"):
             assert math.isfinite(r[preset][key]) and r[preset][key] >= 0

@@ -339,7 +339,8 @@ class AnalyticController:
 
 def benchmark(params: WristParams | str | None = None, steps: int = 20000) -> dict[str, float]:
     """Seconds per controller step (internal-torque and compliance modes) and, as the reference measured in
-    the same run, per evaluation of the least-squares path (``kinematics`` J_a and N + ``stiffness.motor_references``)."""
+    the same run, per evaluation of the least-squares path (``kinematics`` J_a and N +
+    ``stiffness.motor_references``)."""
     import time
 
     from .kinematics import WristKinematics
@@ -374,6 +375,7 @@ def benchmark(params: WristParams | str | None = None, steps: int = 20000) -> di
 if __name__ == "__main__":  # python -m vswrist_gym.control: controller cost against the least-squares path
     r = benchmark()
     print(f"AnalyticController.step, internal-torque mode: {r['step_lambda_s'] * 1e6:.1f} us")
-    print(f"AnalyticController.step, compliance mode (posture changes every step): {r['step_compliance_s'] * 1e6:.1f} us")
+    print("AnalyticController.step, compliance mode (posture changes every step): "
+          f"{r['step_compliance_s'] * 1e6:.1f} us")
     print(f"reference, least-squares J_a + motor_references: {r['least_squares_reference_s'] * 1e6:.1f} us "
           f"-> fast path {r['speedup']:.0f}x faster")

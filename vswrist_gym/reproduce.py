@@ -54,7 +54,9 @@ def reference(t: float) -> tuple[float, float, float]:
 
 
 def per_leg_to_lambda(per_leg: float) -> float:
-    """Internal torque (N m) whose per-leg elastic torque at the central posture is ``per_leg`` (N = -(1,1,1)/sqrt 3)."""
+    """Internal torque (N m) whose per-leg elastic torque at the central posture is ``per_leg``.
+
+    There N = -(1, 1, 1)/sqrt(3), so each leg carries lam/sqrt(3)."""
     return per_leg * math.sqrt(3.0)
 
 
@@ -210,7 +212,8 @@ def figure_3c(params, runs: dict, res: dict, out_dir: Path, tag: str = "load", n
     ax.text(LOAD_TIME, ax.get_ylim()[1], " " + note, fontsize=7, va="top")
     ax.set_xlabel("time, s")
     ax.set_ylabel("posture, rad")
-    ax.set_title(f"Fig. 3c ({params.name}): RMS error LS {res['rms_error_ls']:.3g} rad, HS {res['rms_error_hs']:.3g} rad;"
+    ax.set_title(f"Fig. 3c ({params.name}): RMS error LS {res['rms_error_ls']:.3g} rad, "
+                 f"HS {res['rms_error_hs']:.3g} rad;"
                  f" RMS torque LS {res['rms_torque_ls']:.3g}, HS {res['rms_torque_hs']:.3g} N m", fontsize=7.5)
     ax.legend(fontsize=6.5, ncol=2, loc="lower left")
     fig.tight_layout()
@@ -228,8 +231,10 @@ def run(out: str | Path, quick: bool = False, presets=PRESETS, gravity_compensat
     results: dict = {
         "paper_reported": PAPER,
         "choices": {
-            "ls": f"internal torque with per-leg elastic torque {LS_PER_LEG} N m at rest (lam = {per_leg_to_lambda(LS_PER_LEG):.4f} N m)",
-            "hs": f"internal torque with per-leg elastic torque {HS_PER_LEG} N m at rest (lam = {per_leg_to_lambda(HS_PER_LEG):.4f} N m)",
+            "ls": f"internal torque with per-leg elastic torque {LS_PER_LEG} N m at rest "
+                  f"(lam = {per_leg_to_lambda(LS_PER_LEG):.4f} N m)",
+            "hs": f"internal torque with per-leg elastic torque {HS_PER_LEG} N m at rest "
+                  f"(lam = {per_leg_to_lambda(HS_PER_LEG):.4f} N m)",
             "stiffness_levels_per_leg_N_m": list(LEVELS_PER_LEG),
             "gravity": "each preset's environment.gravity, on the whole device",
             "load": f"{LOAD_MASS} kg x gravity as a force at the hand point from t = {LOAD_TIME} s (sim.apply_wrench)",
@@ -275,7 +280,8 @@ def _table(results: dict, presets) -> str:
     rows = ["| quantity | paper | " + " | ".join(presets) + " |", "|---|---|" + "---|" * len(presets)]
     for key, unit in (("rms_error_ls", "rad"), ("rms_error_hs", "rad"), ("rms_torque_ls", "N m"),
                       ("rms_torque_hs", "N m")):
-        rows.append(f"| {key} ({unit}) | {PAPER[key]:g} | " + " | ".join(f"{results[p][key]:.3g}" for p in presets) + " |")
+        ours = " | ".join(f"{results[p][key]:.3g}" for p in presets)
+        rows.append(f"| {key} ({unit}) | {PAPER[key]:g} | {ours} |")
     for key, paper in (("error_ratio_ls_over_hs", PAPER["rms_error_ls"] / PAPER["rms_error_hs"]),
                        ("torque_ratio_hs_over_ls", PAPER["rms_torque_hs"] / PAPER["rms_torque_ls"])):
         rows.append(f"| {key} | {paper:.3g} | " + " | ".join(f"{results[p][key]:.3g}" for p in presets) + " |")
@@ -295,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     print(_table(results, args.presets))
     if "criteria" in results:
         c = results["criteria"]
-        print(f"criteria (default preset, ratios >= {c['required_min']:g}): error ratio {c['error_ratio_ls_over_hs']:.3g}, "
+        print(f"criteria (default preset, ratios >= {c['required_min']:g}): "
+              f"error ratio {c['error_ratio_ls_over_hs']:.3g}, "
               f"torque ratio {c['torque_ratio_hs_over_ls']:.3g} -> {'PASS' if c['passed'] else 'FAIL'}")
     if "paper_implied_load" in results:
         d = results["paper_implied_load"]
