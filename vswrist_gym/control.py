@@ -112,10 +112,13 @@ class AnalyticController:
         if lam is not None and compliance_ref is not None:
             raise ValueError("give either lam (internal torque) or compliance_ref (2x2 compliance), not both")
         if lam is not None:
-            if isinstance(lam, bool) or not isinstance(lam, (int, float, np.floating, np.integer)) \
-                    or not math.isfinite(lam):
+            try:
+                lam_f = float(lam)
+            except (TypeError, ValueError):
+                lam_f = math.nan
+            if isinstance(lam, bool) or not math.isfinite(lam_f):
                 raise ValueError(f"lam (internal torque, N m) must be a finite number, got {lam!r}")
-            self.lam = min(max(float(lam), -hi), hi)
+            self.lam = min(max(lam_f, -hi), hi)
         elif compliance_ref is not None:
             c_ref = np.asarray(_finite_vector("compliance_ref", compliance_ref, 4)).reshape(2, 2)
             self.lam = self._lm_update(c_ref, (-hi, hi))
