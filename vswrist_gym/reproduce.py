@@ -277,7 +277,7 @@ def run(out: str | Path, quick: bool = False, presets=PRESETS, gravity_compensat
 
 
 def _table(results: dict, presets) -> str:
-    rows = ["| quantity | paper | " + " | ".join(presets) + " |", "|---|---|" + "---|" * len(presets)]
+    rows = ["| quantity | paper (reported) | " + " | ".join(f"ours: {p}" for p in presets) + " |", "|---|---|" + "---|" * len(presets)]
     for key, unit in (("rms_error_ls", "rad"), ("rms_error_hs", "rad"), ("rms_torque_ls", "N m"),
                       ("rms_torque_hs", "N m")):
         ours = " | ".join(f"{results[p][key]:.3g}" for p in presets)
