@@ -16,7 +16,8 @@ import yaml
 
 from vswrist_gym.agents import hparams, protocol, runs
 
-PIPELINE_TASK = "Pendulum-v1"  # a standard Gymnasium task: tests the pipeline independently of the VSWrist envs
+TASK = "VSWrist/LoadHold-v0"
+PIPELINE_TASK = "Pendulum-v1"  # a standard Gymnasium task: tests the pipeline without the VS-Wrist simulator
 
 
 def vswrist(*args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
@@ -77,6 +78,14 @@ def test_every_hyperparameter_key_is_used(algo, env_id):
         if "normalize" in raw:
             assert (cfg.normalize is not None) == bool(raw["normalize"])
             assert (model.get_vec_normalize_env() is not None) == bool(raw["normalize"])
+        for key, value in (raw.get("policy_kwargs") or {}).items():
+            if key == "activation_fn":
+                acts = {m.__class__.__name__.lower() for m in model.policy.modules()}
+                assert {"tanh": "tanh", "relu": "relu", "elu": "elu", "leaky_relu": "leakyrelu"}[value] in acts
+            elif key == "log_std_init":
+                assert np.allclose(model.policy.log_std.detach().numpy(), value)
+            else:
+                assert model.policy_kwargs[key] == value, key
         if "net_arch" in (raw.get("policy_kwargs") or {}):
             layers = [m.out_features for m in model.policy.modules() if m.__class__.__name__ == "Linear"]
             arch = raw["policy_kwargs"]["net_arch"]
@@ -188,7 +197,7 @@ def test_corrupted_model_file_is_a_clear_error(tmp_path):
 def trained_run(tmp_path_factory):
     """`vswrist train` with a tiny budget, 2 SubprocVecEnv workers and VecNormalize (as in configs/ppo.yaml)."""
     out = tmp_path_factory.mktemp("train") / "ppo_run"
-    res = vswrist("train", "--task", PIPELINE_TASK, "--algo", "ppo", "--timesteps", "2048", "--seed", "3",
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--timesteps", "2048", "--seed", "3",
                   "--n-envs", "2", "--out", out)
     assert res.returncode == 0, res.stderr
     return out
@@ -203,8 +212,9 @@ def test_train_writes_a_self_describing_run_dir(trained_run):
     assert set(doc["versions"]) >= {"mujoco", "gymnasium", "stable_baselines3", "torch"}
     assert "--timesteps 2048" in doc["commands"][0]
     cfg = yaml.safe_load((trained_run / "config.yaml").read_text())
-    assert cfg["env_id"] == PIPELINE_TASK and cfg["hyperparameters"]["n_timesteps"] == 2048
+    assert cfg["env_id"] == TASK and cfg["hyperparameters"]["n_timesteps"] == 2048
     assert cfg["hyperparameters"]["n_envs"] == 2
+    assert cfg["hyperparameters"]["env_kwargs"]["action_mode"] == "residual"  # from configs/ppo.yaml
     assert list((trained_run / "tb").iterdir()), "no TensorBoard log"
     assert len(list((trained_run / "monitor").glob("*.monitor.csv"))) == 2  # one per SubprocVecEnv worker
     with np.load(trained_run / "eval" / "evaluations.npz") as ev:
@@ -213,7 +223,7 @@ def test_train_writes_a_self_describing_run_dir(trained_run):
 
 def test_evaluate_a_run_dir_later_and_resume(trained_run, tmp_path):
     out = tmp_path / "eval"
-    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", trained_run, "--episodes", "2", "--seeds", "0", "1",
+    res = vswrist("evaluate", "--task", TASK, "--agent", trained_run, "--episodes", "2", "--seeds", "0", "1",
                   "--out", out)
     assert res.returncode == 0, res.stderr
     doc = json.loads((out / "metrics.json").read_text())
@@ -221,7 +231,7 @@ def test_evaluate_a_run_dir_later_and_resume(trained_run, tmp_path):
     rows = (out / "metrics.csv").read_text().strip().splitlines()
     assert len(rows) == 5 and "return" in rows[0]
     # the same episodes under the same protocol give the same numbers (deterministic policy, seeded resets)
-    res2 = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", trained_run, "--episodes", "2", "--seeds", "0", "1",
+    res2 = vswrist("evaluate", "--task", TASK, "--agent", trained_run, "--episodes", "2", "--seeds", "0", "1",
                    "--out", tmp_path / "eval2")
     assert res2.returncode == 0, res2.stderr
     again = json.loads((tmp_path / "eval2" / "metrics.json").read_text())
@@ -237,7 +247,7 @@ def test_resume_continues_from_the_last_checkpoint(trained_run, tmp_path):
 
     run = tmp_path / "resumed"
     shutil.copytree(trained_run, run)
-    res = vswrist("train", "--task", PIPELINE_TASK, "--algo", "ppo", "--timesteps", "4096", "--out", run, "--resume",
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--timesteps", "4096", "--out", run, "--resume",
                   "--no-progress")
     assert res.returncode == 0, res.stderr
     doc = json.loads((run / "run.json").read_text())
@@ -252,25 +262,30 @@ def test_missing_or_corrupted_model_gives_a_clear_error(trained_run, tmp_path):
     run = tmp_path / "broken"
     shutil.copytree(trained_run, run)
     (run / "model.zip").write_bytes(b"\x00" * 100)
-    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", run, "--episodes", "1", "--seeds", "0",
+    res = vswrist("evaluate", "--task", TASK, "--agent", run, "--episodes", "1", "--seeds", "0",
                   "--out", tmp_path / "e")
     assert res.returncode == 2 and "corrupted" in res.stderr and "Traceback" not in res.stderr
     (run / "model.zip").unlink()
-    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", run, "--episodes", "1", "--seeds", "0",
+    res = vswrist("evaluate", "--task", TASK, "--agent", run, "--episodes", "1", "--seeds", "0",
                   "--out", tmp_path / "e")
     assert res.returncode == 2 and "not found" in res.stderr and "Traceback" not in res.stderr
-    res = vswrist("evaluate", "--task", PIPELINE_TASK, "--agent", tmp_path / "nowhere", "--episodes", "1",
+    res = vswrist("evaluate", "--task", TASK, "--agent", tmp_path / "nowhere", "--episodes", "1",
                   "--out", tmp_path / "e")
     assert res.returncode == 2 and "not found" in res.stderr and "Traceback" not in res.stderr
-    res = vswrist("train", "--task", PIPELINE_TASK, "--algo", "ppo", "--out", trained_run)
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--out", trained_run)
     assert res.returncode == 2 and "--resume" in res.stderr
 
 
+def test_bad_agent_specs_give_clear_errors(tmp_path):
+    res = vswrist("evaluate", "--task", TASK, "--agent", "analytic:2", "--episodes", "1", "--out", tmp_path / "e")
+    assert res.returncode == 2 and "[-1, 1]" in res.stderr and "Traceback" not in res.stderr
+    res = vswrist("evaluate", "--task", "NoSuchTask", "--agent", "analytic", "--episodes", "1", "--out", tmp_path / "e")
+    assert res.returncode == 2 and "VSWrist/LoadHold-v0" in res.stderr and "Traceback" not in res.stderr
+
+
 def test_compare_end_to_end(tmp_path):
-    args = ["compare", "--task", PIPELINE_TASK, "--seeds", "0", "1", "--episodes", "1", "--ppo-timesteps", "512",
-            "--sac-timesteps", "200", "--out", tmp_path / "cmp", "--no-progress", "--n-envs", "1"]
-    if PIPELINE_TASK.startswith("Pendulum"):
-        args.append("--no-analytic")
+    args = ["compare", "--task", TASK, "--seeds", "0", "1", "--episodes", "1", "--ppo-timesteps", "512",
+            "--sac-timesteps", "200", "--stiffness", "-1", "1", "--out", tmp_path / "cmp", "--no-progress"]
     res = vswrist(*args)
     assert res.returncode == 0, res.stderr
     assert "95 %" in res.stdout and "| PPO |" in res.stdout and "| SAC |" in res.stdout
@@ -278,6 +293,14 @@ def test_compare_end_to_end(tmp_path):
         assert (tmp_path / "cmp" / name).stat().st_size > 0, name
     summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
     assert summary["rows"]["PPO"]["return"]["n"] == 2
+    assert set(summary["rows"]) == {"PPO", "SAC", "analytic:-1.00", "analytic:+1.00"}
+    assert summary["verdicts"]["best_baseline"] in ("analytic:-1.00", "analytic:+1.00")
+    # the analytic rows are the same episodes as `vswrist evaluate --agent analytic:1` (one protocol)
+    res = vswrist("evaluate", "--task", TASK, "--agent", "analytic:1", "--episodes", "1", "--seeds", "0", "1",
+                  "--out", tmp_path / "ev")
+    assert res.returncode == 0, res.stderr
+    ev = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert ev["summary"]["return"]["mean"] == pytest.approx(summary["rows"]["analytic:+1.00"]["return"]["mean"])
     # a second call loads the trained runs instead of training again
     res = vswrist(*args)
     assert res.returncode == 0 and "loaded" in res.stdout

@@ -32,11 +32,8 @@ def _short(env_id: str) -> str:
     return env_id.split("/")[-1].rsplit("-v", 1)[0]
 
 
-def ensure_trained(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | None, config, n_envs,
-                   retrain: bool, progress: bool, log) -> tuple[Path, str]:
-    """Train, resume or load the run for one (algo, seed); returns the run dir and what was done."""
-    from vswrist_gym.agents.train import train
-
+def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | None, config, retrain: bool):
+    """What a (algo, seed) run needs: ('load' | 'resume' | 'train', steps wanted)."""
     if retrain and run_dir.exists():
         shutil.rmtree(run_dir)
     wanted = timesteps or load_config(algo, env_id, config).n_timesteps
@@ -44,16 +41,63 @@ def ensure_trained(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: 
         cfg, old_seed = read_config(run_dir)
         if cfg.env_id != env_id or cfg.algo != algo or old_seed != seed:
             raise RunDirError(f"{run_dir} holds {cfg.algo} seed {old_seed} on {cfg.env_id}; use --retrain or --out")
-        done = json.loads((run_dir / "run.json").read_text()).get("num_timesteps", 0) if (run_dir / "run.json").exists() else 0
+        run_json = run_dir / "run.json"
+        done = json.loads(run_json.read_text()).get("num_timesteps", 0) if run_json.exists() else 0
         if (run_dir / "model.zip").exists() and done >= wanted:
-            return run_dir, f"loaded ({done} steps)"
-        log(f"[{algo} seed {seed}] continuing {run_dir} to {wanted} steps")
-        train(env_id, algo, run_dir, timesteps=wanted, n_envs=n_envs, resume=True, progress=progress, log=log)
-        return run_dir, f"resumed to {wanted} steps"
-    log(f"[{algo} seed {seed}] training {wanted} steps -> {run_dir}")
-    start = time.time()
-    train(env_id, algo, run_dir, config=config, timesteps=wanted, seed=seed, n_envs=n_envs, progress=progress, log=log)
-    return run_dir, f"trained {wanted} steps in {time.time() - start:.0f} s"
+            return "load", wanted
+        return "resume", wanted
+    return "train", wanted
+
+
+def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: bool, log) -> None:
+    """Run the planned trainings: in this process (jobs = 1) or as up to `jobs` concurrent `vswrist train`
+    subprocesses (each logs to <run_dir>.log)."""
+    import subprocess
+
+    from vswrist_gym.agents.train import TrainingError, train
+
+    todo = [p for p in plans if p["action"] != "load"]
+    if jobs <= 1:
+        for p in todo:
+            log(f"[{p['algo']} seed {p['seed']}] {p['action']} to {p['wanted']} steps -> {p['run_dir']}")
+            start = time.time()
+            train(env_id, p["algo"], p["run_dir"], config=p["config"], timesteps=p["wanted"], seed=p["seed"],
+                  n_envs=n_envs, resume=p["action"] == "resume", progress=progress, log=log)
+            p["what"] = f"{p['action']} {p['wanted']} steps in {time.time() - start:.0f} s"
+        return
+    running: list[tuple[dict, subprocess.Popen, float, object]] = []
+    queue = list(todo)
+    failed = []
+    while queue or running:
+        while queue and len(running) < jobs:
+            p = queue.pop(0)
+            cmd = [sys.executable, "-m", "vswrist_gym.cli", "train", "--task", env_id, "--algo", p["algo"],
+                   "--seed", str(p["seed"]), "--timesteps", str(p["wanted"]), "--out", str(p["run_dir"]),
+                   "--no-progress"]
+            if p["config"]:
+                cmd += ["--config", str(p["config"])]
+            if n_envs:
+                cmd += ["--n-envs", str(n_envs)]
+            if p["action"] == "resume":
+                cmd.append("--resume")
+            p["run_dir"].parent.mkdir(parents=True, exist_ok=True)
+            fh = open(p["run_dir"].with_suffix(".log"), "w")
+            log(f"[{p['algo']} seed {p['seed']}] {p['action']} to {p['wanted']} steps -> {p['run_dir']} (subprocess)")
+            running.append((p, subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT), time.time(), fh))
+        time.sleep(0.2)
+        for item in list(running):
+            p, proc, start, fh = item
+            if proc.poll() is not None:
+                fh.close()
+                running.remove(item)
+                if proc.returncode != 0:
+                    tail = p["run_dir"].with_suffix(".log").read_text().strip().splitlines()[-3:]
+                    failed.append(f"{p['algo']} seed {p['seed']} (exit {proc.returncode}): " + " / ".join(tail))
+                else:
+                    p["what"] = f"{p['action']} {p['wanted']} steps in {time.time() - start:.0f} s"
+                    log(f"[{p['algo']} seed {p['seed']}] {p['what']}")
+    if failed:
+        raise TrainingError("training failed: " + "; ".join(failed))
 
 
 def _num(x: float, name: str) -> str:
@@ -168,7 +212,7 @@ def plot_traces(path: Path, traces: dict[str, dict], title: str):
 def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, stiffness=DEFAULT_STIFFNESS_LEVELS,
             out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
             n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
-            argv: list[str] | None = None, log=print) -> dict:
+            jobs: int = 1, argv: list[str] | None = None, log=print) -> dict:
     from vswrist_gym.agents.evaluate import AgentSpec
     from vswrist_gym.agents.runs import limit_threads
     from vswrist_gym.agents.train import task_id
@@ -181,16 +225,19 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
     timesteps, configs = timesteps or {}, configs or {}
     t0 = time.time()
 
-    runs: dict[str, list[Path]] = {}
-    training = {}
+    runs: dict[str, list[Path]] = {algo: [] for algo in algos}
+    plans = []
     for algo in algos:
-        runs[algo] = []
         for s in seeds:
-            run_dir, what = ensure_trained(env_id, algo, s, out / "runs" / f"{algo}_seed{s}", timesteps.get(algo),
-                                           configs.get(algo), n_envs, retrain, progress, log)
+            run_dir = out / "runs" / f"{algo}_seed{s}"
+            action, wanted = plan_run(env_id, algo, s, run_dir, timesteps.get(algo), configs.get(algo), retrain)
+            plans.append({"algo": algo, "seed": s, "run_dir": run_dir, "action": action, "wanted": wanted,
+                          "config": configs.get(algo), "what": f"loaded ({wanted} steps)"})
             runs[algo].append(run_dir)
-            training[f"{algo}_seed{s}"] = what
-            log(f"[{algo} seed {s}] {what}")
+            if action == "load":
+                log(f"[{algo} seed {s}] loaded {run_dir} ({wanted} steps)")
+    run_trainings(env_id, plans, jobs, n_envs, progress, log)
+    training = {f"{p['algo']}_seed{p['seed']}": p["what"] for p in plans}
     t_train = time.time() - t0
 
     rows: dict[str, dict] = {}
@@ -269,6 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ppo-config", help="PPO hyperparameter file (default configs/ppo.yaml)")
     p.add_argument("--sac-config", help="SAC hyperparameter file (default configs/sac.yaml)")
     p.add_argument("--n-envs", type=int, help="parallel environments per training run (overrides n_envs)")
+    p.add_argument("--jobs", type=int, default=2,
+                   help="training runs at a time, as subprocesses (default 2: one per core of a 2-core machine)")
     p.add_argument("--retrain", action="store_true", help="delete and retrain existing runs in --out")
     p.add_argument("--no-analytic", action="store_true", help="skip the analytic baseline")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -282,17 +331,21 @@ def main(argv: list[str] | None = None) -> int:
         for k in args.stiffness:
             if not -1.0 <= k <= 1.0:
                 raise ConfigError(f"--stiffness values must be in [-1, 1], got {k}")
-        for name in ("episodes", "ppo_timesteps", "sac_timesteps", "n_envs"):
+        for name in ("episodes", "ppo_timesteps", "sac_timesteps", "n_envs", "jobs"):
             v = getattr(args, name)
             if v is not None and v <= 0:
                 raise ConfigError(f"--{name.replace('_', '-')} must be a positive integer, got {v}")
         doc = compare(args.task, algos=args.algos, seeds=args.seeds, episodes=args.episodes, stiffness=args.stiffness,
                       out=args.out, timesteps={"ppo": args.ppo_timesteps, "sac": args.sac_timesteps},
                       configs={"ppo": args.ppo_config, "sac": args.sac_config}, n_envs=args.n_envs,
-                      retrain=args.retrain, analytic=not args.no_analytic, progress=not args.no_progress, argv=argv)
+                      retrain=args.retrain, analytic=not args.no_analytic, progress=not args.no_progress,
+                      jobs=args.jobs, argv=argv)
     except (ConfigError, RunDirError, ValueError) as exc:
         print(f"vswrist compare: error: {exc}", file=sys.stderr)
         return 2
+    except RuntimeError as exc:  # TrainingError: an environment or worker failed during training
+        print(f"vswrist compare: error: {exc}", file=sys.stderr)
+        return 1
     print()
     print(doc["header"])
     print(doc["table"])

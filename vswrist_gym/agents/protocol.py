@@ -62,7 +62,7 @@ def _info_value(info: dict, key: str) -> float:
 def run_episode(env, agent, seed: int, frames: list | None = None) -> tuple[dict, Trace]:
     """Run one episode deterministically; returns the metric record and the trace."""
     obs, info = env.reset(seed=seed)
-    dt = float(getattr(env.unwrapped, "dt", 1.0))
+    dt = float(getattr(env.unwrapped, "ctrl_dt", None) or getattr(env.unwrapped, "dt", 1.0))  # control period, s
     trace = Trace()
     total, steps, success = 0.0, 0, math.nan
     peak = math.nan
@@ -152,7 +152,7 @@ def write_video(env_id: str, make_agent, env_kwargs: dict, seed: int, path: Path
     try:
         frames: list = []
         run_episode(env, make_agent(env), seed, frames=frames)
-        fps = env.metadata.get("render_fps") or int(round(1.0 / float(getattr(env.unwrapped, "dt", 0.05))))
+        fps = env.metadata.get("render_fps") or 30
     finally:
         env.close()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,10 @@ from vswrist_gym.agents.runs import (RunDirError, atomic_write_bytes, check_env_
                                      override, read_config, save_checkpoint, update_run_json, versions,
                                      wrap_normalize, write_config)
 
+class TrainingError(RuntimeError):
+    """Training stopped because the environment or a worker failed; the run dir keeps its last checkpoint."""
+
+
 EVAL_SEED_OFFSET = 10_000  # periodic-evaluation environments never share seeds with the training environments
 
 
@@ -148,6 +152,14 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
                 update_run_json(run_dir, status="interrupted", num_timesteps=int(model.num_timesteps))
                 log(f"interrupted at {model.num_timesteps} steps; checkpoint saved, continue with --resume")
                 raise
+            except Exception as exc:  # noqa: BLE001 - an environment or worker failure: keep what was learnt
+                update_run_json(run_dir, status="failed", error=f"{type(exc).__name__}: {exc}",
+                                num_timesteps=int(model.num_timesteps))
+                latest = latest_checkpoint(run_dir)
+                raise TrainingError(
+                    f"training stopped at step {model.num_timesteps} of {cfg.n_timesteps}: {type(exc).__name__}: "
+                    f"{exc}" + (f"; the last checkpoint ({latest.name}) is intact, continue with --resume"
+                                if latest else "")) from exc
             finally:
                 eval_env.close()
             update_run_json(run_dir, train_seconds=round(time.time() - start, 1))
@@ -197,6 +209,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, RunDirError) as exc:
         print(f"vswrist train: error: {exc}", file=sys.stderr)
         return 2
+    except TrainingError as exc:
+        print(f"vswrist train: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
     print(f"run directory: {run_dir}")
