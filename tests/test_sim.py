@@ -318,3 +318,4 @@ def test_python_fallback_callbacks_match_the_compiled_ones():
         finally:
             native.install("c")
     np.testing.assert_allclose(runs[0], runs[1], atol=1e-9)
+
