@@ -185,8 +185,10 @@ def test_control_period_is_whole_number_of_physics_steps():
     assert u.n_substeps * u.model.opt.timestep == pytest.approx(0.01)
     assert u.episode_steps == round(u.cfg["episode_s"] / 0.01)
     env.reset(seed=0)
+    t0 = u.data.time  # the settling period before the episode
+    assert t0 == pytest.approx(u.cfg["settle_s"])
     env.step(baseline_action(env))
-    assert u.data.time == pytest.approx(0.01)
+    assert u.data.time - t0 == pytest.approx(0.01)
 
 
 def test_reference_to_action_inverts_posture_stiffness_mapping():

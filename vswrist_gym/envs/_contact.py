@@ -6,6 +6,13 @@ import mujoco
 import numpy as np
 
 
+# Contact of the tool with task objects (MuJoCo solref: time constant s, damping ratio). With MuJoCo's default
+# (0.02, 1) the tool sinks deep into thin objects on impact and single samples of the touch sensor reach
+# hundreds to thousands of N; 10 ms, critically damped, keeps penetration and force readings sane (measured:
+# Impact/Insertion peaks 34/81 N instead of 494/1656 N in the same episodes).
+CONTACT_SOLREF = (0.01, 1.0)
+
+
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).ravel())
@@ -33,6 +40,7 @@ def add_mocap_box_body(spec: mujoco.MjSpec, name: str, boxes, rgba=(0.55, 0.45, 
         kw = {} if R is None else {"quat": list(quat_from_matrix(R))}
         body.add_geom(name=f"task_{name}_{i}", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(size), pos=list(pos),
                       contype=0, conaffinity=2, condim=3, friction=[friction, 0.005, 0.0001], rgba=list(rgba),
+                      solref=list(CONTACT_SOLREF),
                       group=1, **kw)
     return body
 

@@ -30,6 +30,7 @@ from gymnasium import spaces
 
 from ..params import load_params
 from .config import SCALE_TERMS, EnvConfigError, load_env_config, validate_task
+from ._contact import CONTACT_SOLREF
 from .spaces import ObsTerm, PostureMap, StiffnessMap, check_action, wrap_angle
 
 DEVICE_TERMS = ("spring_K", "spring_delta0", "motor_time_constant", "link_mass", "hand_mass", "damping")
@@ -158,6 +159,7 @@ class VSWristEnv(gym.Env):
             raise EnvConfigError(f"'ctrl_dt' = {self.ctrl_dt:g} s must be a whole number of physics steps of "
                                  f"{dt:g} s (got {n:.6g}); choose ctrl_dt = k * physics_dt")
         self.n_substeps = int(round(n))
+        self._settle_steps = max(1, int(round(self.cfg["settle_s"] / dt)))
         self._scene_ids()
         self._tool_body = self.model.body("tool").id
         self._nominal_tool_mass = float(self.model.body_mass[self._tool_body])
@@ -381,6 +383,11 @@ class VSWristEnv(gym.Env):
         self.sim.reset(u=tuple(u0), ps=float(ps0), lam=lam0)
         self.ctrl.reset(posture=(float(u0[0]), float(u0[1]), float(ps0)), lam=lam0)
         self.sim.apply_wrench(np.zeros(3), np.zeros(3))
+        if self.cfg["settle_s"] > 0.0:
+            # let the wrist settle under gravity at the initial references (the simulator starts at rest at
+            # the exact posture, which is not an equilibrium once the hand's and the tool's weight act)
+            self.sim.set_motor_references(self.ctrl.step(np.array([u0[0], u0[1], ps0]), lam=lam0))
+            self.sim.step(self._settle_steps * self.model.opt.timestep)
         self._after_reset()
         self._target = self._reference(0.0)
         self._measure()
@@ -549,7 +556,7 @@ class VSWristEnv(gym.Env):
         spec.body("tool").add_geom(name=f"task_{name}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=list(fromto),
                                    size=[radius, 0, 0], mass=mass, contype=2, conaffinity=0,
                                    friction=[friction, 0.005, 0.0001], rgba=[0.55, 0.55, 0.6, 1], group=1,
-                                   condim=3)
+                                   condim=3, solref=list(CONTACT_SOLREF))
 
     def _sensor_adr(self, name: str) -> int:
         return int(self.model.sensor_adr[self.model.sensor(name).id])

@@ -121,6 +121,7 @@ def validate_common(cfg: dict, defaults: Mapping[str, Any]) -> None:
     if cfg["physics_dt"] is not None:
         cfg["physics_dt"] = number("physics_dt", cfg["physics_dt"], 0.0, cfg["ctrl_dt"], lo_open=True)
     cfg["episode_s"] = number("episode_s", cfg["episode_s"], cfg["ctrl_dt"], 600.0)
+    cfg["settle_s"] = number("settle_s", cfg["settle_s"], 0.0, 60.0)
     choice("action_mode", cfg["action_mode"], ACTION_MODES)
     choice("obs_mode", cfg["obs_mode"], OBS_MODES)
     choice("stiffness_map", cfg["stiffness_map"], STIFFNESS_MAPS)

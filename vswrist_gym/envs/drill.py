@@ -65,8 +65,14 @@ class DrillEnv(VSWristEnv):
         self._engaged = False
         return self._u, self._ps0, float(rng.uniform(-1.0, 1.0))
 
+    ramp_s = 1.0  # s, the PS speed ramps up smoothly (constant acceleration) over this time
+
+    def _ps_travel(self, t: float) -> float:
+        r = self.ramp_s
+        return self._ps_speed * (0.5 * t * t / r if t < r else t - 0.5 * r)
+
     def _reference(self, t: float) -> np.ndarray:
-        ps = float(np.clip(self._ps0 + self._ps_speed * t, self.posture_map.lo[2], self.posture_map.hi[2]))
+        ps = float(np.clip(self._ps0 + self._ps_travel(t), self.posture_map.lo[2], self.posture_map.hi[2]))
         return np.array([self._u[0], self._u[1], ps])
 
     def _before_physics(self, t: float) -> None:
@@ -84,6 +90,9 @@ class DrillEnv(VSWristEnv):
     def _contact_force(self) -> float:
         """The thrust of the workpiece on the bit (N) while engaged."""
         return self._thrust if getattr(self, "_engaged", False) else 0.0
+
+    def _tracking_error(self, err):
+        return err[:2]  # PS is the tool turning; the disturbance acts on RUD/FE
 
     def _success(self) -> bool:
         t = (np.arange(len(self._history["error"])) + 1) * self.ctrl_dt

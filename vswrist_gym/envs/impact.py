@@ -1,9 +1,9 @@
 """``VSWrist/Impact-v0``: follow a flexion/extension motion during which the tool may meet an obstacle.
 
-The reference moves FE from ``fe_start`` to ``fe_end`` (minimum jerk, ``move_s``) and back, at a random RUD and
-PS. In most episodes (``obstacle_probability``) a wall stands across the tool's path at a random fraction of
+The tool is heavy (``tool_mass``, not compensated by the controller). The reference moves FE from ``fe_start``
+to ``fe_end`` (minimum jerk, ``move_s``) and back, at a random RUD and PS. In most episodes (``obstacle_probability``) a wall stands across the tool's path at a random fraction of
 the way; the agent is not told where. Adapting stiffness pays: a stiff wrist tracks the free motion closely
-(gravity and inertia), a soft one keeps the contact force low once the reference pushes into the wall, and the
+(the tool's weight and inertia), a soft one keeps the contact force low once the reference pushes into the wall, and the
 force/torque sensor tells when contact begins.
 
 Success: peak contact force below ``success_force`` and RMS posture error over the steps without contact
@@ -19,7 +19,7 @@ from .base import VSWristEnv
 from .drill import FINGER_END
 from .load_hold import smoothstep
 
-WALL_HALF = (0.004, 0.03, 0.035)  # m: thickness (along the motion), along the tool, across
+WALL_HALF = (0.01, 0.03, 0.035)  # m: thickness (along the motion), along the tool, across
 
 
 class ImpactEnv(VSWristEnv):
@@ -30,6 +30,7 @@ class ImpactEnv(VSWristEnv):
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "tool_radius": ("number", 0.001, 0.05),
+        "tool_mass": ("number", 0.001, 5.0),
         "rud_range": ("interval", -1.5, 1.5),
         "fe_start": ("interval", -1.5, 1.5),
         "fe_end": ("interval", -1.5, 1.5),
@@ -45,7 +46,8 @@ class ImpactEnv(VSWristEnv):
 
     def _scene(self, spec) -> None:
         self._tip_x = FINGER_END + self.tp["tool_length"]
-        self._add_tool_geom(spec, "stick", [0.02, 0, 0, self._tip_x, 0, 0], self.tp["tool_radius"], 0.06)
+        self._add_tool_geom(spec, "stick", [0.02, 0, 0, self._tip_x, 0, 0], self.tp["tool_radius"],
+                            self.tp["tool_mass"])
         body = add_mocap_box_body(spec, "task_wall", [(WALL_HALF, (0, 0, 0), None)], rgba=(0.7, 0.35, 0.3, 1))
         hx, hy, hz = WALL_HALF
         self._add_touch_sensor(spec, body, "wall_touch", (hx + 0.01, hy + 0.01, hz + 0.01))

@@ -5,9 +5,9 @@ PS = 0, so radial/ulnar deviation drives the pin along its own axis (the pin is 
 to its arc of motion half-way into the hole). The hole (square, radial clearance ``clearance``, chamfered) stands
 below the pin; its true position is off nominal by up to ``lateral_error`` along Y_b (fixed by FE) and its
 axis by up to ``angular_error`` about X_b (fixed by PS). The posture reference ramps from above the nominal
-hole to ``overdrive`` rad beyond full depth at the nominal FE and PS of the hole. Adapting stiffness pays: a soft
-wrist lets the chamfer and walls steer the pin into the true hole without jamming; a stiff one then pushes it
-down against friction.
+hole to ``overdrive`` rad beyond full depth at the nominal FE and PS of the hole. Past ``fit_depth`` of the
+hole a fit (latch, press fit) resists with ``fit_force``. Adapting stiffness pays: a soft wrist lets the chamfer
+and walls steer the pin into the true hole without jamming; only a stiff one pushes it past the fit.
 
 Depth: how far the pin tip is below the hole entrance along the hole axis while it is inside the hole
 (laterally within the clearance). Success: the largest depth reaches ``success_depth`` x ``hole_depth``.
@@ -48,6 +48,8 @@ class InsertionEnv(VSWristEnv):
         "approach_s": ("number", 0.02, 600.0),
         "success_depth": ("number", 0.0, 1.0),
         "friction": ("number", 0.0, 5.0),
+        "fit_force": ("interval", 0.0, 1000.0),
+        "fit_depth": ("number", 0.0, 1.0),
     }
     task_reward_terms = ("depth", "jamming")
 
@@ -125,6 +127,7 @@ class InsertionEnv(VSWristEnv):
         self._rud_end = self._rud_at_depth(1.0, self._pin_a, self._pin_v) + self.tp["overdrive"]
         self._depth = 0.0
         self._max_depth = 0.0
+        self._fit = float(rng.uniform(*self.tp["fit_force"]))
         return np.array([self.tp["start_rud"], self._fe]), self._ps, float(rng.uniform(-1.0, 1.0))
 
     def _after_reset(self) -> None:
@@ -146,6 +149,13 @@ class InsertionEnv(VSWristEnv):
         rud = self.tp["start_rud"] + s * (self._rud_end - self.tp["start_rud"])
         return np.array([rud, self._fe, self._ps])
 
+    def _before_physics(self, t: float) -> None:
+        """Past ``fit_depth`` the fit resists insertion with ``fit_force`` along the hole axis, applied to the hand
+        (a latch or press fit; the force acts at the hand centre, a simplification of where the pin feels it)."""
+        D = self.tp["hole_depth"]
+        engage = min(max((self._depth - self.tp["fit_depth"] * D) / (0.1 * D), 0.0), 1.0)  # ramps in over 0.1 D
+        self.sim.apply_wrench(engage * self._fit * self._hole[1][:, 2], np.zeros(3))
+
     def _contact_force(self) -> float:
         return float(self.data.sensordata[self._touch_adr])
 
@@ -166,7 +176,7 @@ class InsertionEnv(VSWristEnv):
         self._depth = self.pin_depth()
         self._max_depth = max(self._max_depth, self._depth)
         return {"depth": self._depth / self.tp["hole_depth"],
-                "jamming": -(self._contact / self.cfg["scales"]["force"]) ** 2}
+                "jamming": -self._contact / self.cfg["scales"]["force"]}
 
     def _tracking_error(self, err):
         return err[1:]  # the RUD reference is driven past the hole bottom on purpose

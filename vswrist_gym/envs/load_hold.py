@@ -1,7 +1,7 @@
 """``VSWrist/LoadHold-v0``: hold posture references while an unknown load hangs on the hand.
 
 The paper's experiment (1.5 kg at the hand from 0.5 s), generalised: 1-3 piecewise-constant posture references
-(smooth 0.3 s transitions), a load of random mass, onset time and direction (within a cone around gravity)
+(smooth 0.6 s transitions), a load of random mass, onset time and direction (within a cone around gravity)
 applied at the hand centre. Adapting stiffness pays: before the load arrives a soft wrist holds the posture
 without preload energy; after it arrives only a stiff wrist keeps the posture error small.
 
@@ -38,7 +38,7 @@ class LoadHoldEnv(VSWristEnv):
         "success_window": ("number", 0.0, 600.0),
         "success_energy": ("number", 0.0, 1e6),
     }
-    blend_s = 0.3
+    blend_s = 0.6  # s, minimum-jerk transition between references (slower would hide the load's effect)
 
     def _sample_posture(self, rng) -> np.ndarray:
         f = self.tp["target_fraction"]
@@ -50,6 +50,8 @@ class LoadHoldEnv(VSWristEnv):
     def _task_reset(self, rng):
         n = int(rng.integers(self.tp["n_targets"][0], self.tp["n_targets"][1] + 1))
         self._targets = [self._sample_posture(rng) for _ in range(n)]
+        for t in self._targets[1:]:  # one PS angle per episode: the load acts on RUD/FE, and PS steps are slow
+            t[2] = self._targets[0][2]
         T = self.cfg["episode_s"]
         self._switch = np.sort(rng.uniform(0.2 * T, 0.8 * T, n - 1)) if n > 1 else np.zeros(0)
         self._mass = float(rng.uniform(*self.tp["load_mass"]))

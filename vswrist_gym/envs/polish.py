@@ -3,10 +3,11 @@
 The tool (a capsule, tip radius ``tool_radius``) sweeps sinusoidally in flexion/extension over a flat surface
 below it (normal along +Z_b, radial/ulnar deviation presses the tool down). The posture reference presses
 ``press`` rad beyond the nominal surface; the true surface is off by up to ``height_error`` and tilted by up to
-``tilt`` about X_b, so its height changes along the sweep. The normal force (touch sensor on the surface) must
-stay inside ``force_band``. Adapting stiffness pays: the force is roughly stiffness x penetration of the
-reference, and the penetration changes along the sweep and between episodes (Phan et al. 2020: human
-polishers stiffen the wrist as the force level rises).
+``tilt`` about X_b, so its height changes along the sweep. The episode has 1-3 passes, each with its own target
+normal force (observation term ``force_target``); the normal force (touch sensor on the surface) must stay
+within ``force_tolerance`` of it. Adapting stiffness pays: the force is roughly stiffness x penetration of the
+reference, so every target force needs its own stiffness, and friction drag along the sweep costs FE tracking
+on a soft wrist (Phan et al. 2020: human polishers stiffen the wrist as the force level rises).
 
 Success: the force is in band in at least ``success_fraction`` of the steps after ``settle_s``.
 """
@@ -27,7 +28,7 @@ class PolishEnv(VSWristEnv):
     task = "polish"
     task_id = "VSWrist/Polish-v0"
     summary = "press a polishing tool on a surface of uncertain height and tilt while sweeping; force in a band"
-    success_text = "normal force inside the band (2-8 N) in >= 60 % of the steps after 0.5 s"
+    success_text = "normal force within 2 N of the pass's target force in >= 60 % of the steps after 0.5 s"
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "tool_radius": ("number", 0.001, 0.05),
@@ -38,12 +39,16 @@ class PolishEnv(VSWristEnv):
         "sweep_amplitude": ("interval", 0.0, 1.5),
         "sweep_period": ("interval", 0.05, 600.0),
         "ps_range": ("interval", -np.pi, np.pi),
-        "force_band": ("interval", 0.0, 1e4),
+        "force_target": ("interval", 0.0, 1e4),
+        "force_tolerance": ("number", 0.0, 1e4),
+        "passes": ("int_interval", 1, 20),
         "success_fraction": ("number", 0.0, 1.0),
         "settle_s": ("number", 0.0, 600.0),
         "friction": ("number", 0.0, 5.0),
     }
     task_reward_terms = ("force_band",)
+    _pass_start = np.zeros(1)
+    _forces = np.zeros(1)
     approach_s = 0.3
 
     def _validate_task(self) -> None:
@@ -79,6 +84,10 @@ class PolishEnv(VSWristEnv):
         self._amp = min(self._amp, rom.fe_max - 0.05, -rom.fe_min - 0.05)
         self._u_start = np.array([self._rud_c - 0.15, self._fe(0.0)])
         self._in_band: list[bool] = []
+        n = int(rng.integers(self.tp["passes"][0], self.tp["passes"][1] + 1))
+        T = self.cfg["episode_s"]
+        self._pass_start = np.concatenate([[0.0], np.sort(rng.uniform(0.25 * T, 0.8 * T, n - 1))])
+        self._forces = rng.uniform(*self.tp["force_target"], n)
         return self._u_start, self._ps, float(rng.uniform(-1.0, 1.0))
 
     def _fe(self, t: float) -> float:
@@ -98,11 +107,25 @@ class PolishEnv(VSWristEnv):
         rud = self._u_start[0] + smoothstep(t / self.approach_s) * (rud_goal - self._u_start[0])
         return np.array([rud, self._fe(t), self._ps])
 
+    def _task_obs_terms(self):
+        from .spaces import ObsTerm
+        return [ObsTerm("force_target", 1, "N", "target normal force of the current pass", self.force_target,
+                        0.0, 1e4)]
+
+    def force_target(self) -> float:
+        """Target normal force (N) of the pass under way."""
+        k = int(np.searchsorted(self._pass_start, self._t, side="right")) - 1
+        return float(self._forces[max(k, 0)])
+
+    def force_band(self) -> tuple[float, float]:
+        f, tol = self.force_target(), self.tp["force_tolerance"]
+        return max(f - tol, 0.0), f + tol
+
     def _contact_force(self) -> float:
         return float(self.data.sensordata[self._touch_adr])
 
     def _task_reward_terms(self, err) -> dict:
-        lo, hi = self.tp["force_band"]
+        lo, hi = self.force_band()
         f = self._contact
         self._in_band.append(lo <= f <= hi)
         out = max(lo - f, 0.0, f - hi)

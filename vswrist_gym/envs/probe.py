@@ -1,0 +1,151 @@
+"""Does adapting stiffness within an episode pay off? Constant stiffness against a simple adaptive rule.
+
+``python -m vswrist_gym.envs.probe [--episodes N] [--tasks ...]`` runs, on every task, the reference agent
+(command the task's posture reference, ``target``) with each constant stiffness command in
+``CONSTANT_COMMANDS`` and with a simple hand-written rule that changes the stiffness within the episode from
+what the observation shows (no hidden task state). It prints mean return and success rate of each. A task
+"pays for adaptation" when the rule's mean return beats the best constant command.
+
+The rules (observation only):
+
+* LoadHold, Drill: stiff while the posture error shows a load (above ``ERR_ON`` within the last ``HOLD_S``),
+  soft otherwise;
+* Polish: integral control of the stiffness command on the normal force (stiffer below the band, softer above);
+* Impact: stiff in free motion, soft while the tool touches something;
+* Insertion: soft while the pin is jammed (contact force above ``JAM``), stiff otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
+TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
+ERR_ON = 0.03   # rad
+JAM = 8.0       # N
+ORACLE_LOW = 0.0  # stiffness command of the oracle when the task needs no stiffness (the soft end rings)
+SLEW = 4.0      # 1/s, largest rate of change of the stiffness command (full range in 0.5 s)
+HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last exceeded ERR_ON
+
+
+def adaptive_policy(env):
+    """A stateful function obs -> action implementing the task's rule (see the module docstring)."""
+    u = env.unwrapped
+    sl = u.obs_slices
+    task = u.task
+    state = {"s": 0.0, "hold": 0}
+    hold_steps = int(round(HOLD_S / u.ctrl_dt))
+
+    def act(obs):
+        obs = np.asarray(obs, dtype=float)
+        target = obs[sl["target"]]
+        err = float(np.linalg.norm((obs[sl["posture"]] - target)[:2]))
+        contact = float(obs[sl["contact_force"]][0]) if "contact_force" in sl else 0.0
+        if task in ("load_hold", "drill"):
+            state["hold"] = hold_steps if err > ERR_ON else max(state["hold"] - 1, 0)
+            s = 1.0 if state["hold"] > 0 else -1.0
+        elif task == "polish":
+            goal = float(obs[sl["force_target"]][0])
+            state["s"] = float(np.clip(state["s"] + 0.02 * (goal - contact), -1.0, 1.0))
+            s = state["s"]
+        elif task == "impact":
+            s = -1.0 if contact > 0.5 else 1.0
+        else:  # insertion
+            s = -1.0 if contact > JAM else 1.0
+        # move the command at a limited rate: a jump in preload shakes the lightly damped wrist
+        step = SLEW * u.ctrl_dt
+        state["cmd"] = state.get("cmd", s) + float(np.clip(s - state.get("cmd", s), -step, step))
+        return u.reference_to_action(target, state["cmd"])
+    return act
+
+
+def oracle_policy(env):
+    """Soft/stiff from the hidden task state (event times, depth): what adapting is worth with perfect knowledge."""
+    u = env.unwrapped
+    task = u.task
+    state = {}
+
+    def act(obs):
+        t = u._t
+        if task == "load_hold":
+            # after the onset, as stiff as the (hidden) load needs: full stiffness for the heaviest load
+            heavy = u._mass / u.tp["load_mass"][1]
+            s = -1.0 + 2.0 * min(1.0, heavy) if t >= u._onset else ORACLE_LOW
+        elif task == "drill":
+            s = 1.0 if u._t_on - 0.1 <= t < u._t_off else ORACLE_LOW
+        elif task == "insertion":
+            s = 1.0 if u._depth > 0.0 else ORACLE_LOW
+        elif task == "impact":
+            s = ORACLE_LOW if u._contact > 0.5 else 1.0
+        else:  # polish: the stiffness whose force matches the target, from the measured force (integral rule)
+            return adaptive(obs)
+        step = SLEW * u.ctrl_dt
+        state["cmd"] = state.get("cmd", s) + float(np.clip(s - state.get("cmd", s), -step, step))
+        return u.reference_to_action(u._target, state["cmd"])
+    adaptive = adaptive_policy(env)
+    return act
+
+
+def constant_policy(env, s: float):
+    u = env.unwrapped
+    sl = u.obs_slices["target"]
+    return lambda obs: u.reference_to_action(np.asarray(obs)[sl], s)
+
+
+def evaluate(env, policy_factory, seeds) -> tuple[float, float]:
+    returns, successes = [], []
+    for seed in seeds:
+        policy = policy_factory()
+        obs, _ = env.reset(seed=int(seed))
+        total, done = 0.0, False
+        while not done:
+            obs, r, term, trunc, info = env.step(policy(obs))
+            total += r
+            done = term or trunc
+        returns.append(total)
+        successes.append(info["is_success"])
+    return float(np.mean(returns)), float(np.mean(successes))
+
+
+def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None) -> dict:
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    env = gym.make(f"VSWrist/{task}-v0", config=config or {})
+    seeds = range(seed0, seed0 + episodes)
+    out = {"task": task, "constant": {}}
+    for s in CONSTANT_COMMANDS:
+        out["constant"][s] = evaluate(env, lambda s=s: constant_policy(env, s), seeds)
+    out["adaptive"] = evaluate(env, lambda: adaptive_policy(env), seeds)
+    out["oracle"] = evaluate(env, lambda: oracle_policy(env), seeds)
+    best = max(out["constant"], key=lambda s: out["constant"][s][0])
+    out["best_constant"] = best
+    out["gain"] = out["adaptive"][0] - out["constant"][best][0]
+    out["oracle_gain"] = out["oracle"][0] - out["constant"][best][0]
+    env.close()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    ap.add_argument("--energy-weight", type=float, default=None, help="override reward.energy")
+    args = ap.parse_args(argv)
+    config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
+    cols = "".join(f"{'s=' + format(s, '+.1f'):>16}" for s in CONSTANT_COMMANDS)
+    print(f"mean return (success rate) over {args.episodes} episodes, reference agent")
+    print(f"{'task':<11}{cols}{'rule':>16}{'oracle':>16}{'rule-best':>10}{'oracle-best':>12}")
+    for task in args.tasks:
+        r = probe(task, args.episodes, config=config)
+        cells = "".join(f"{r['constant'][s][0]:>9.1f} ({r['constant'][s][1]:.1f})" for s in CONSTANT_COMMANDS)
+        print(f"{task:<11}{cells}{r['adaptive'][0]:>9.1f} ({r['adaptive'][1]:.1f}){r['oracle'][0]:>9.1f} "
+              f"({r['oracle'][1]:.1f}){r['gain']:>+10.1f}{r['oracle_gain']:>+12.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,119 @@
+"""The environment tables of ``docs/environments.md``, generated from the code and the YAML configs.
+
+``python -m vswrist_gym.envs.table --write docs/environments.md`` rewrites the blocks between
+``<!-- BEGIN GENERATED: name -->`` and ``<!-- END GENERATED: name -->``; ``--check`` fails if they are stale
+(the test suite runs the same check), so the documented tables cannot drift from the code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+
+def _envs():
+    import gymnasium as gym
+
+    import vswrist_gym
+
+    return [gym.make(env_id).unwrapped for env_id in vswrist_gym.ENV_IDS]
+
+
+def env_table(envs) -> str:
+    rows = ["| id | task | action | observation terms | reward terms (weight) | success | episode |",
+            "|---|---|---|---|---|---|---|"]
+    for e in envs:
+        obs = ", ".join(f"`{t.name}`" for t in e.obs_terms)
+        rew = ", ".join(f"`{k}` ({w:g})" for k, w in e.reward_weights.items())
+        act = f"`{e.cfg['action_mode']}` Box(-1, 1, ({e.action_space.shape[0]},))"
+        ep = f"{e.cfg['episode_s']:g} s = {e.episode_steps} steps at {1 / e.ctrl_dt:g} Hz"
+        rows.append(f"| `{e.task_id}` | {e.summary} | {act} | {obs} ({e.obs_size} values) | {rew} | "
+                    f"{e.success_text} | {ep} |")
+    return "\n".join(rows)
+
+
+def obs_table(envs) -> str:
+    used = {}
+    for e in envs:
+        for t in e.obs_terms:
+            used.setdefault(t.name, []).append(e.task_id.split("/")[1].replace("-v0", ""))
+    ref = envs[[len(e.obs_terms) for e in envs].index(max(len(e.obs_terms) for e in envs))]
+    terms = ref._terms
+    rows = ["| term | size | unit | meaning | default in |", "|---|---|---|---|---|"]
+    for name, t in terms.items():
+        where = ", ".join(used.get(name, [])) or "(available, not default)"
+        size = t.size if name != "prev_action" else f"{t.size} (action size)"
+        rows.append(f"| `{name}` | {size} | {t.unit} | {t.doc} | {where} |")
+    return "\n".join(rows)
+
+
+def index_table(envs) -> str:
+    """Flat-observation indices of every task (the ``obs_slices`` contract)."""
+    rows = ["| task | " + " | ".join(["indices"]) + " |", "|---|---|"]
+    for e in envs:
+        parts = ", ".join(f"`{n}` {s.start}:{s.stop}" for n, s in e.obs_slices.items())
+        rows.append(f"| `{e.task_id}` | {parts} |")
+    return "\n".join(rows)
+
+
+def randomisation_table(envs) -> str:
+    rnd = envs[0].cfg["randomize"]
+    rows = ["| term | default | range / std |", "|---|---|---|"]
+    for name, spec in rnd.items():
+        if "range" in spec:
+            rng = f"{spec['range'][0]:g} to {spec['range'][1]:g}" + (" s" if name == "latency" else " x nominal")
+        else:
+            rng = ", ".join(f"{k} {v:g}" for k, v in spec.items() if k != "enabled")
+        rows.append(f"| `{name}` | {'on' if spec['enabled'] else 'off'} | {rng} |")
+    return "\n".join(rows)
+
+
+BLOCKS = {"env-table": env_table, "obs-terms": obs_table, "obs-indices": index_table,
+          "randomisation": randomisation_table}
+
+
+def render_blocks() -> dict[str, str]:
+    envs = _envs()
+    out = {name: fn(envs) for name, fn in BLOCKS.items()}
+    for e in envs:
+        e.close()
+    return out
+
+
+def update(text: str, blocks: dict[str, str]) -> str:
+    for name, body in blocks.items():
+        pat = re.compile(rf"(<!-- BEGIN GENERATED: {name} -->\n).*?(\n<!-- END GENERATED: {name} -->)", re.S)
+        if not pat.search(text):
+            raise ValueError(f"block '{name}' markers not found")
+        text = pat.sub(lambda m: m.group(1) + body + m.group(2), text)
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("path", nargs="?", default="docs/environments.md")
+    g = ap.add_mutually_exclusive_group()
+    g.add_argument("--write", action="store_true", help="rewrite the generated blocks in place")
+    g.add_argument("--check", action="store_true", help="exit 1 if the generated blocks are stale")
+    args = ap.parse_args(argv)
+    path = Path(args.path)
+    text = path.read_text()
+    new = update(text, render_blocks())
+    if args.write:
+        path.write_text(new)
+        print(f"{path}: generated blocks updated")
+        return 0
+    if args.check:
+        if new != text:
+            print(f"{path}: generated blocks are stale; run python -m vswrist_gym.envs.table --write {path}",
+                  file=sys.stderr)
+            return 1
+        return 0
+    print(new)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
