@@ -319,3 +319,15 @@ def test_python_fallback_callbacks_match_the_compiled_ones():
             native.install("c")
     np.testing.assert_allclose(runs[0], runs[1], atol=1e-9)
 
+
+
+def test_divergence_raises_instead_of_silently_resetting(tmp_path, monkeypatch):
+    """MuJoCo resets the state when it meets NaN or huge values; the simulator must say so."""
+    from vswrist_gym.sim import SimulationError
+
+    monkeypatch.chdir(tmp_path)  # MuJoCo's default warning handler writes MUJOCO_LOG.TXT into the cwd
+    sim = WristSim()
+    sim.reset(lam=1.0)
+    sim.data.qvel[0] = 1e12  # beyond MuJoCo's mjMAXVAL: what a diverging integration produces
+    with pytest.raises(SimulationError):
+        sim.step(0.01)

@@ -81,7 +81,8 @@ class WristSim:
         self._K, self._delta0 = self.params.spring.K, self.params.spring.delta0
         rom = self.params.range_of_motion
         self._ps_range = (rom.ps_min, rom.ps_max)
-        self._badqacc = int(mujoco.mjtWarning.mjWARN_BADQACC)
+        self._bad = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
+                                      mujoco.mjtWarning.mjWARN_BADQVEL)]
         m.opt.disableflags |= _SENSOR_FLAG
         self._stale = True
         self.reset()
@@ -157,9 +158,10 @@ class WristSim:
         d = self.data
         mujoco.mj_step(self.model, d, n)
         self._stale = True
-        if d.warning[self._badqacc].number:
-            raise SimulationError(f"MuJoCo reported unstable accelerations at t = {d.time:.4f} s "
-                                  f"(and reset the state); the timestep or constraint settings are too coarse")
+        w = d.warning
+        if w[self._bad[0]].number or w[self._bad[1]].number or w[self._bad[2]].number:
+            raise SimulationError("MuJoCo reported NaN or huge positions/velocities/accelerations and reset the "
+                                  "state; the timestep or constraint settings are too coarse for this motion")
 
     # -------------------------------------------------------------- measures
     def _forward(self) -> None:
