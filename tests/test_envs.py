@@ -329,3 +329,16 @@ def test_diverged_physics_terminates_with_penalty():
     assert info["reward_termination"] == -u.reward_weights["termination"]
     assert "unstable" in info["simulation_error"]
     assert env.observation_space.contains(obs) and np.isfinite(r)
+
+
+def test_documented_tables_match_the_code():
+    """docs/environments.md's generated tables (ids, actions, observation terms, reward weights, success,
+    episode length, indices, randomisation) are what the code produces now."""
+    from pathlib import Path
+
+    from vswrist_gym.envs.table import render_blocks, update
+
+    path = Path(__file__).resolve().parents[1] / "docs" / "environments.md"
+    text = path.read_text()
+    assert update(text, render_blocks()) == text, \
+        "stale tables: run python -m vswrist_gym.envs.table --write docs/environments.md"

@@ -296,6 +296,10 @@ class VSWristEnv(gym.Env):
             raise ValueError(f"posture_ref must be 3 finite angles (RUD, FE, PS) in rad, got {posture_ref!r}")
         return np.append(self.posture_map.to_command(ref), s).astype(np.float32)
 
+    def success_description(self) -> str:
+        """The success criterion in words, with this instance's numbers."""
+        return self.success_text.format(**{k: v for k, v in self.tp.items() if not isinstance(v, tuple)})
+
     def lam_to_stiffness_command(self, lam: float) -> float:
         """The stiffness command in [-1, 1] that maps to internal torque ``lam`` (N m), clipped to [0, lam_max]."""
         return self.stiffness_map.to_command(lam)

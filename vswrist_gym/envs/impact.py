@@ -26,7 +26,7 @@ class ImpactEnv(VSWristEnv):
     task = "impact"
     task_id = "VSWrist/Impact-v0"
     summary = "follow an FE motion that may meet an unexpected obstacle; keep the peak force low while tracking"
-    success_text = "peak contact force < 25 N and RMS posture error without contact < 0.08 rad"
+    success_text = "peak contact force < {success_force:g} N and RMS posture error without contact < {success_error:g} rad"
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "tool_radius": ("number", 0.001, 0.05),

@@ -30,7 +30,7 @@ class InsertionEnv(VSWristEnv):
     task = "insertion"
     task_id = "VSWrist/Insertion-v0"
     summary = "insert a pin into a chamfered hole with lateral and angular misalignment; depth against jamming"
-    success_text = "pin tip reaches 80 % of the hole depth"
+    success_text = "the pin tip reaches {success_depth:.0%} of the hole depth"
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "pin_length": ("number", 0.005, 0.1),

@@ -27,8 +27,8 @@ SURFACE_HALF = (0.06, 0.16, 0.01)  # m, half sizes of the surface slab
 class PolishEnv(VSWristEnv):
     task = "polish"
     task_id = "VSWrist/Polish-v0"
-    summary = "press a polishing tool on a surface of uncertain height and tilt while sweeping; force in a band"
-    success_text = "normal force within 2 N of the pass's target force in >= 60 % of the steps after 0.5 s"
+    summary = "sweep a polishing tool over a surface of uncertain height and tilt, holding a target force per pass"
+    success_text = "normal force within {force_tolerance:g} N of the pass's target force in >= {success_fraction:.0%} of the steps after {settle_s:g} s"
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "tool_radius": ("number", 0.001, 0.05),

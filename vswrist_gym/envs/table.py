@@ -30,7 +30,7 @@ def env_table(envs) -> str:
         act = f"`{e.cfg['action_mode']}` Box(-1, 1, ({e.action_space.shape[0]},))"
         ep = f"{e.cfg['episode_s']:g} s = {e.episode_steps} steps at {1 / e.ctrl_dt:g} Hz"
         rows.append(f"| `{e.task_id}` | {e.summary} | {act} | {obs} ({e.obs_size} values) | {rew} | "
-                    f"{e.success_text} | {ep} |")
+                    f"{e.success_description()} | {ep} |")
     return "\n".join(rows)
 
 
@@ -84,10 +84,10 @@ def render_blocks() -> dict[str, str]:
 
 def update(text: str, blocks: dict[str, str]) -> str:
     for name, body in blocks.items():
-        pat = re.compile(rf"(<!-- BEGIN GENERATED: {name} -->\n).*?(\n<!-- END GENERATED: {name} -->)", re.S)
+        pat = re.compile(rf"(<!-- BEGIN GENERATED: {name} -->\n)(?:.*?\n)?(<!-- END GENERATED: {name} -->)", re.S)
         if not pat.search(text):
             raise ValueError(f"block '{name}' markers not found")
-        text = pat.sub(lambda m: m.group(1) + body + m.group(2), text)
+        text = pat.sub(lambda m: m.group(1) + body + "\n" + m.group(2), text)
     return text
 
 
