@@ -170,14 +170,15 @@ def stiffness_error(params, u, frac: float) -> tuple[float, float]:
 
 
 def closure_under_random_references(params, posture_rate: float | None, seconds: float = 10.0,
-                                    seed: int = 1) -> float:
-    """Worst loop-closure error over random posture targets (new one every 0.5 s) at the largest preload,
-    gravity on. ``posture_rate`` (rad/s) limits how fast the commanded posture moves; None: jumps."""
+                                    seed: int = 1) -> tuple[float, float]:
+    """Worst loop-closure error and fastest motor (rad/s) over random posture targets (new one every 0.5 s)
+    at the largest preload, gravity on. ``posture_rate`` (rad/s) limits how fast the commanded posture
+    moves; None: jumps. Motor speeds are sampled at every control period."""
     sim = WristSim(params)
     rng = np.random.default_rng(seed)
     u = np.zeros(2)
     sim.reset(u=u, lam=lambda_range(u, params)[1])
-    worst, target, ps = 0.0, u, 0.0
+    worst, fastest, target, ps = 0.0, 0.0, u, 0.0
     for k in range(int(seconds / 0.02)):
         if k % 25 == 0:
             target, ps = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
@@ -189,7 +190,8 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
         sim.set_motor_references(np.append(motor_references(u, lambda_range(u, params)[1], params), ps))
         sim.step(0.02)
         worst = max(worst, sim.loop_closure_error())
-    return worst
+        fastest = max(fastest, float(np.abs(sim.motor_velocities()).max()))
+    return worst, fastest
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -258,12 +260,12 @@ def main(argv: list[str] | None = None) -> int:
             for dt in (0.0005, 0.001, 0.002):
                 p = base.replace(simulation={"timestep": dt, "constraint_timeconst": 2 * dt})
                 errs = [stiffness_error(p, u, f) for u, f in (((0.0, 0.0), 0.9), ((0.5, 0.4), -0.8), ((-0.6, -0.5), 0.3))]
-                closure = closure_under_random_references(p, 3.0)
-                closure_jumps = closure_under_random_references(p, None)
+                closure, speed_rate = closure_under_random_references(p, 3.0)
+                closure_jumps, speed_jumps = closure_under_random_references(p, None)
                 sim = WristSim(p)
                 per = _time_full(sim, _reference_schedule(sim, 64), 0.02, 2.0)
                 print(f"  [{preset}] dt {dt * 1e3:4.1f} ms  stiffness err {max(e for e, _ in errs):6.2%}  "
                       f"paper formula {min(e for _, e in errs):5.1%}-{max(e for _, e in errs):5.1%}  "
-                      f"closure {closure:.1e} (jumps {closure_jumps:.1e})  {1 / per:7.0f} substeps/s  "
-                      f"RTF {dt / per:4.0f}x")
+                      f"closure {closure:.1e} (jumps {closure_jumps:.1e})  fastest motor {speed_rate:4.1f} "
+                      f"({speed_jumps:4.1f}) rad/s  {1 / per:7.0f} substeps/s  RTF {dt / per:4.0f}x")
     return 0

@@ -15,8 +15,10 @@ Structure (every element named; base frame = world frame, X along the forearm):
   ``hand`` is the paper's 300 g point mass 10 cm along the coupler X axis; ``tool`` is attached at site
   ``tool_mount``; sensors ``tool_force`` / ``tool_torque`` measure the hand-tool interaction.
 * Actuators ``motor_A/B/C`` (on the rotors) and ``motor_ps`` (on ``ps``): reference = ``ctrl`` (rad), rate-limited
-  first-order low-pass (time constant, speed limit) into the activation, then a PD position loop
-  ``kp (act - q) - kd qdot`` clamped to the torque limit. The low-pass is ``dyntype=user`` (native callback).
+  first-order low-pass (time constant, speed limit) into the activation (the servo setpoint), held within
+  ``kd vmax / kp`` of the motor angle, then a PD position loop ``kp (act - q) - kd qdot`` clamped to the torque
+  limit: the loop never commands more than the speed limit and does not wind up when the torque saturates.
+  The setpoint dynamics are ``dyntype=user`` (native callback, ``dynprm`` = time constant, speed limit, lead).
 * Tendons ``deflection_A/B/C`` = q1 - theta with the mechanical deflection limit as a tendon limit.
 * Custom numeric ``vswrist_spring`` = (K, delta0, q1 dof adr x3, motor dof adr x3, q1 qpos adr x3, motor qpos adr
   x3) carries each model's own spring parameters to the process-global callbacks, which ignore any model
@@ -71,6 +73,9 @@ def model_xml(params: WristParams | str | None = None) -> str:
     d = p.geometry.d
     alpha = p.geometry.alpha
     inr, mot, sim = p.inertia, p.motor, p.simulation
+    # The PS motor is the PM motor scaled to its torque: reflected inertia and loop gains times
+    # ps_torque_limit / torque_limit, so its position loop has the same bandwidth sqrt(kp / J) and damping.
+    ps_scale = mot.ps_torque_limit / mot.torque_limit
     solref = f'solref="{sim.constraint_timeconst:.17g} {sim.constraint_dampratio:.17g}"'
     solimp = f'solimp="{sim.constraint_dmin:.17g} {sim.constraint_dmax:.17g} {sim.constraint_width:.17g} 0.5 2"'
     gravity = _fmt(p.environment.gravity)
@@ -93,7 +98,7 @@ def model_xml(params: WristParams | str | None = None) -> str:
             <geom name="coupler_ring" type="cylinder" fromto="-0.004 0 0 0.004 0 0" size="0.026" rgba="0.75 0.75 0.78 1"/>
             <body name="ps" pos="0 0 0">
               <joint name="ps" type="hinge" axis="1 0 0" damping="{p.damping.ps_joint:.17g}"
-                     armature="{mot.rotor_inertia:.17g}"/>
+                     armature="{mot.rotor_inertia * ps_scale:.17g}"/>
               <inertial pos="0.02 0 0" mass="{inr.ps_mass:.17g}" diaginertia="{_fmt([inr.ps_inertia] * 3)}"/>
               <geom name="ps_flange" type="cylinder" fromto="0.004 0 0 0.03 0 0" size="0.018" rgba="0.6 0.6 0.62 1"/>
               <geom name="ps_shaft" type="capsule" fromto="0.03 0 0 {inr.hand_offset - 0.02:.17g} 0 0" size="0.008"
@@ -146,15 +151,17 @@ def model_xml(params: WristParams | str | None = None) -> str:
 
     damping = p.damping.leg_joint
     tl, vmax, tc = mot.torque_limit, mot.speed_limit, mot.time_constant
+    lead = mot.kd * vmax / mot.kp  # following-error limit: the PD loop then commands at most the speed limit
 
-    def actuator(name: str, joint: str, limit: float) -> str:
-        return (f'<general name="{name}" joint="{joint}" dyntype="user" dynprm="{tc:.17g} {vmax:.17g}" '
-                f'gaintype="fixed" gainprm="{mot.kp:.17g}" biastype="affine" '
-                f'biasprm="0 {-mot.kp:.17g} {-mot.kd:.17g}" forcelimited="true" '
+    def actuator(name: str, joint: str, limit: float, scale: float = 1.0) -> str:
+        kp, kd = mot.kp * scale, mot.kd * scale
+        return (f'<general name="{name}" joint="{joint}" dyntype="user" dynprm="{tc:.17g} {vmax:.17g} {lead:.17g}" '
+                f'gaintype="fixed" gainprm="{kp:.17g}" biastype="affine" '
+                f'biasprm="0 {-kp:.17g} {-kd:.17g}" forcelimited="true" '
                 f'forcerange="{-limit:.17g} {limit:.17g}"/>')
 
     actuators = [actuator(f"motor_{n}", f"motor_{n}", tl) for n in LEG_NAMES]
-    actuators.append(actuator("motor_ps", "ps", mot.ps_torque_limit))
+    actuators.append(actuator("motor_ps", "ps", mot.ps_torque_limit, ps_scale))
     tendons = [f"""
     <fixed name="deflection_{n}" limited="true" range="{-p.spring.deflection_limit:.17g} {p.spring.deflection_limit:.17g}"
            solreflimit="{sim.stop_timeconst:.17g} 1" solimplimit="0.9 0.95 0.001 0.5 2">

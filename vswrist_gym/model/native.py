@@ -62,15 +62,25 @@ static void vswrist_passive(const mjModel* m, mjData* d) {
   }
 }
 
-/* Rate-limited first-order low-pass of the motor reference: d act/dt = clip((ctrl - act) / T, -vmax, vmax). */
+/* Servo setpoint: a rate-limited first-order low-pass of the reference (ctrl),
+   d act/dt = clip((ctrl - act) / T, -vmax, vmax), kept within +-lead of the motor angle q (following-error
+   limit, lead = kd vmax / kp): the PD loop kp (act - q) - kd qdot then never asks for more than vmax and does
+   not wind up when the torque saturates. dynprm = (T, vmax, lead). */
 static mjtNum vswrist_act_dyn(const mjModel* m, const mjData* d, int id) {
   if (!find_numeric(m, "%(motor)s", 1)) {
     return prev_act_dyn ? prev_act_dyn(m, d, id) : 0.0;
   }
   const mjtNum* prm = m->actuator_dynprm + id * mjNDYN;
-  mjtNum rate = (d->ctrl[id] - d->act[m->actuator_actadr[id]]) / prm[0];
+  const mjtNum act = d->act[m->actuator_actadr[id]];
+  const int jnt = m->actuator_trnid[2 * id];
+  const mjtNum q = d->qpos[m->jnt_qposadr[jnt]], qdot = d->qvel[m->jnt_dofadr[jnt]];
+  const mjtNum tb = 2.0 * m->opt.timestep;
+  mjtNum rate = (d->ctrl[id] - act) / prm[0];
   if (rate > prm[1]) rate = prm[1];
   if (rate < -prm[1]) rate = -prm[1];
+  const mjtNum hi = qdot + (q + prm[2] - act) / tb, lo = qdot + (q - prm[2] - act) / tb;
+  if (rate > hi) rate = hi;
+  if (rate < lo) rate = lo;
   return rate;
 }
 
@@ -174,9 +184,15 @@ def _py_act_dyn(m, d, i) -> float:
     except KeyError:
         prev = _py_prev.get("act_dyn")
         return prev(m, d, i) if prev is not None else 0.0
-    tc, vmax = m.actuator_dynprm[i, 0], m.actuator_dynprm[i, 1]
-    rate = (d.ctrl[i] - d.act[m.actuator_actadr[i]]) / tc
-    return float(min(max(rate, -vmax), vmax))
+    tc, vmax, lead = m.actuator_dynprm[i, :3]
+    act = d.act[m.actuator_actadr[i]]
+    j = m.actuator_trnid[i, 0]
+    q, qdot = d.qpos[m.jnt_qposadr[j]], d.qvel[m.jnt_dofadr[j]]
+    tb = 2.0 * m.opt.timestep
+    rate = min(max((d.ctrl[i] - act) / tc, -vmax), vmax)
+    rate = min(rate, qdot + (q + lead - act) / tb)
+    rate = max(rate, qdot + (q - lead - act) / tb)
+    return float(rate)
 
 
 # ------------------------------------------------------------------------------------------ install
