@@ -266,9 +266,14 @@ class VSWristEnv(gym.Env):
         (loads included), cheap (closed-form J_a, no Hessian); the ~13 % load term is left out."""
         _, Ja, _ = self.ctrl.kinematics_at(self._posture[:2])
         s = self.params.spring
-        sigma = (2.0 * s.K / s.delta0) * np.cosh(self._defl / s.delta0)
-        S = Ja.T @ (sigma[:, None] * Ja)
-        return np.array([S[0, 0], S[0, 1], S[1, 1]])
+        c, d0 = 2.0 * s.K / s.delta0, s.delta0
+        s00 = s01 = s11 = 0.0
+        for (a, b), dk in zip(Ja.tolist(), self._defl.tolist()):
+            sig = c * math.cosh(dk / d0)
+            s00 += sig * a * a
+            s01 += sig * a * b
+            s11 += sig * b * b
+        return (s00, s01, s11)
 
     def _raw_observation(self) -> np.ndarray:
         """All terms written into one new float64 array (so no term is ever a view of simulator memory)."""
