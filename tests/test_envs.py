@@ -393,3 +393,18 @@ def test_adapting_stiffness_pays_on_polish():
 
     r = probe("Polish", episodes=8)
     assert r["adaptive"][0] > max(v[0] for v in r["constant"].values())
+
+
+def test_every_randomisation_term_on_runs_and_is_seeded():
+    on = {k: {"enabled": True} for k in ("spring_K", "spring_delta0", "motor_time_constant", "link_mass",
+                                           "hand_mass", "damping", "tool_mass", "friction", "latency")}
+    a = make("VSWrist/Impact-v0", config={"randomize": on})
+    b = make("VSWrist/Impact-v0", config={"randomize": on})
+    ra, rb = rollout(a, 5, seed=11), rollout(b, 5, seed=11)
+    for (oa, _, _), (ob, _, _) in zip(ra, rb):
+        np.testing.assert_array_equal(oa, ob)
+    u = a.unwrapped
+    assert u._latency > 0.0 and u.params.spring.K != u.nominal_params.spring.K
+    k1 = u.params.spring.K
+    a.reset(seed=12)
+    assert u.params.spring.K != k1

@@ -376,7 +376,10 @@ class VSWristEnv(gym.Env):
         if self._task_geoms.size:
             self.model.geom_friction[self._task_geoms] = self._nominal_friction * ff
         lat = rnd["latency"]
-        self._latency = float(rng.uniform(*lat["range"])) if lat["enabled"] else 0.0
+        # latency in whole physics steps, at most one step short of the control period
+        dt = float(self.model.opt.timestep)
+        steps = int(round(float(rng.uniform(*lat["range"])) / dt)) if lat["enabled"] else 0
+        self._latency = min(steps, self.n_substeps - 1) * dt
         noise = rnd["sensor_noise"]
         self._noise_std = {k: float(noise[k]) for k in ("posture", "posture_rate", "force", "torque")} \
             if noise["enabled"] else None
