@@ -129,7 +129,10 @@ def table_markdown(rows: list[tuple[str, dict]], metrics=TABLE_METRICS) -> str:
 
 
 def verdicts(rows: dict[str, dict], learned: list[str], baselines: list[str]) -> dict:
-    """Each learned agent against the best fixed-stiffness baseline (highest mean return): beats / worse / overlap."""
+    """Each learned agent against the best fixed-stiffness baseline (highest mean return): beats / worse / overlap
+    by the 95 % CIs of the return over seeds, and the paired difference (same seeds, same episodes) with its CI."""
+    from vswrist_gym.agents.protocol import mean_ci
+
     valid = [b for b in baselines if not math.isnan(rows[b]["return"]["mean"])]
     if not valid:
         return {}
@@ -138,14 +141,17 @@ def verdicts(rows: dict[str, dict], learned: list[str], baselines: list[str]) ->
     out = {"best_baseline": best}
     for name in learned:
         r = rows[name]["return"]
+        diff = mean_ci([x - y for x, y in zip(r["per_seed"], b["per_seed"])])
+        paired = (f"; paired difference in return {diff['mean']:+.1f} [{diff['low']:+.1f}, {diff['high']:+.1f}]"
+                  if not math.isnan(diff["low"]) else "")
         if any(math.isnan(x) for x in (r["low"], r["high"], b["low"], b["high"])):
             out[name] = "no CI (fewer than two seeds)"
         elif r["low"] > b["high"]:
-            out[name] = f"beats {best} (95 % CIs of the return do not overlap)"
+            out[name] = f"beats {best} (95 % CIs of the return do not overlap){paired}"
         elif r["high"] < b["low"]:
-            out[name] = f"worse than {best} (95 % CIs of the return do not overlap)"
+            out[name] = f"worse than {best} (95 % CIs of the return do not overlap){paired}"
         else:
-            out[name] = f"not distinguishable from {best} (95 % CIs of the return overlap)"
+            out[name] = f"not distinguishable from {best} (95 % CIs of the return overlap){paired}"
     return out
 
 
@@ -212,7 +218,7 @@ def plot_traces(path: Path, traces: dict[str, dict], title: str):
 def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, stiffness=DEFAULT_STIFFNESS_LEVELS,
             out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
             n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
-            jobs: int = 1, argv: list[str] | None = None, log=print) -> dict:
+            jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=print) -> dict:
     from vswrist_gym.agents.evaluate import AgentSpec
     from vswrist_gym.agents.runs import limit_threads
     from vswrist_gym.agents.train import task_id
@@ -229,7 +235,7 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
     plans = []
     for algo in algos:
         for s in seeds:
-            run_dir = out / "runs" / f"{algo}_seed{s}"
+            run_dir = (Path(runs_dir) if runs_dir else out / "runs") / f"{algo}_seed{s}"
             action, wanted = plan_run(env_id, algo, s, run_dir, timesteps.get(algo), configs.get(algo), retrain)
             plans.append({"algo": algo, "seed": s, "run_dir": run_dir, "action": action, "wanted": wanted,
                           "config": configs.get(algo), "what": f"loaded ({wanted} steps)"})
@@ -311,6 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stiffness", type=float, nargs="+", default=list(DEFAULT_STIFFNESS_LEVELS),
                    help="fixed stiffness commands of the analytic baseline, each in [-1, 1]")
     p.add_argument("--out", help="output directory (default runs/compare/<task>)")
+    p.add_argument("--runs-dir", help="where the training runs live (default OUT/runs); keeps models out of OUT")
     p.add_argument("--ppo-timesteps", type=int, help="PPO training steps per seed (default: configs/ppo.yaml)")
     p.add_argument("--sac-timesteps", type=int, help="SAC training steps per seed (default: configs/sac.yaml)")
     p.add_argument("--ppo-config", help="PPO hyperparameter file (default configs/ppo.yaml)")
@@ -339,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
                       out=args.out, timesteps={"ppo": args.ppo_timesteps, "sac": args.sac_timesteps},
                       configs={"ppo": args.ppo_config, "sac": args.sac_config}, n_envs=args.n_envs,
                       retrain=args.retrain, analytic=not args.no_analytic, progress=not args.no_progress,
-                      jobs=args.jobs, argv=argv)
+                      jobs=args.jobs, runs_dir=args.runs_dir, argv=argv)
     except (ConfigError, RunDirError, ValueError) as exc:
         print(f"vswrist compare: error: {exc}", file=sys.stderr)
         return 2
