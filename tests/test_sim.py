@@ -163,9 +163,9 @@ def test_static_stiffness_exhaustive(preset):
 def random_reference_run(preset, seconds=10.0, seed=0, posture_rate=None):
     """10 s of random motor references at the largest preload lambda_range(u)[1], gravity on.
 
-    posture_rate None: the references jump to a new random posture every 0.5 s (motors saturate).
-    Otherwise the posture behind the references moves towards each random target at that rate (rad/s), as a
-    controller would command it. The PS reference is random in both."""
+    A new random target (RUD, FE in the range of motion, PS in [-2, 2] rad) every 0.5 s. posture_rate None: the
+    references jump to it (motors saturate). Otherwise the commanded posture (RUD, FE and PS) moves towards it
+    at that rate (rad/s), as a controller would command it."""
     p = load_params(preset)
     sim = WristSim(p)
     rng = np.random.default_rng(seed)
@@ -173,15 +173,16 @@ def random_reference_run(preset, seconds=10.0, seed=0, posture_rate=None):
     sim.reset(u=u, lam=lambda_range(u, p)[1])
     tl = np.array([p.motor.torque_limit] * 3 + [p.motor.ps_torque_limit])
     worst_closure, worst_torque = 0.0, 0.0
-    target, ps = u, 0.0
+    target, ps_target, ps = u, 0.0, 0.0
     for k in range(int(seconds / 0.02)):
         if k % 25 == 0:
-            target, ps = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
+            target, ps_target = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
         if posture_rate is None:
-            u = target
+            u, ps = target, ps_target
         else:
             step = target - u
             u = u + step * min(1.0, posture_rate * 0.02 / max(np.linalg.norm(step), 1e-12))
+            ps += float(np.clip(ps_target - ps, -posture_rate * 0.02, posture_rate * 0.02))
         sim.set_motor_references(np.append(motor_references(u, lambda_range(u, p)[1], p), ps))
         sim.step(0.02)
         worst_closure = max(worst_closure, sim.loop_closure_error())

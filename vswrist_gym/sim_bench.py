@@ -178,15 +178,16 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
     rng = np.random.default_rng(seed)
     u = np.zeros(2)
     sim.reset(u=u, lam=lambda_range(u, params)[1])
-    worst, fastest, target, ps = 0.0, 0.0, u, 0.0
+    worst, fastest, target, ps_target, ps = 0.0, 0.0, u, 0.0, 0.0
     for k in range(int(seconds / 0.02)):
         if k % 25 == 0:
-            target, ps = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
+            target, ps_target = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
         if posture_rate is None:
-            u = target
+            u, ps = target, ps_target
         else:
             step = target - u
             u = u + step * min(1.0, posture_rate * 0.02 / max(float(np.linalg.norm(step)), 1e-12))
+            ps += float(np.clip(ps_target - ps, -posture_rate * 0.02, posture_rate * 0.02))
         sim.set_motor_references(np.append(motor_references(u, lambda_range(u, params)[1], params), ps))
         sim.step(0.02)
         worst = max(worst, sim.loop_closure_error())
