@@ -35,6 +35,8 @@ from .spaces import ObsTerm, PostureMap, StiffnessMap, check_action, wrap_angle
 
 DEVICE_TERMS = ("spring_K", "spring_delta0", "motor_time_constant", "link_mass", "hand_mass", "damping")
 COMMON_REWARD_TERMS = ("tracking", "energy", "action_rate", "termination")
+FORCE_CAP = 10.0  # force penalties saturate at FORCE_CAP x scales.force: one violent contact sample (rigid
+                  # contacts driven by stiff servos reach kN for a step) must not swamp a whole episode
 
 
 def _import_sim():
@@ -222,9 +224,9 @@ class VSWristEnv(gym.Env):
             ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action, -1.0, 1.0),
             ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target, pl, ph),
             ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)",
-                    self._obs_wrench, np.array([-1e3] * 3 + [-1e2] * 3), np.array([1e3] * 3 + [1e2] * 3)),
+                    self._obs_wrench, np.array([-1e4] * 3 + [-1e3] * 3), np.array([1e4] * 3 + [1e3] * 3)),
             ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (with noise)",
-                    self._obs_contact, 0.0, 1e4),
+                    self._obs_contact, 0.0, 1e5),
             ObsTerm("phase", 1, "-", "elapsed fraction of the episode",
                     lambda: self._step / self.episode_steps, 0.0, 1.0),
         ]

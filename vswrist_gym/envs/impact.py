@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._contact import add_mocap_box_body, quat_from_matrix
-from .base import VSWristEnv
+from .base import FORCE_CAP, VSWristEnv
 from .drill import FINGER_END
 from .load_hold import smoothstep
 
@@ -100,7 +100,7 @@ class ImpactEnv(VSWristEnv):
     def _task_reward_terms(self, err) -> dict:
         if self._contact <= self.contact_threshold:
             self._free_err.append(float(err @ err))
-        return {"force": -(self._contact / self.cfg["scales"]["force"]) ** 2}
+        return {"force": -min(self._contact / self.cfg["scales"]["force"], FORCE_CAP) ** 2}
 
     def _success(self) -> bool:
         rms = float(np.sqrt(np.mean(self._free_err))) if self._free_err else 0.0

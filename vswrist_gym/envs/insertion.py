@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._contact import add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
-from .base import VSWristEnv
+from .base import FORCE_CAP, VSWristEnv
 from .config import EnvConfigError
 from .drill import FINGER_END
 
@@ -101,7 +101,7 @@ class InsertionEnv(VSWristEnv):
         boxes.append(((w + 2 * WALL, w + 2 * WALL, WALL), (0.0, 0.0, -D - WALL), None))
         if c > 0:
             half = c / np.sqrt(2.0)
-            t = 0.002
+            t = 0.006  # half thickness: thick enough that the pin cannot sink through on impact
             for sgn in (1.0, -1.0):
                 n = np.array([-sgn, 0.0, 1.0]) / np.sqrt(2.0)
                 mid = np.array([sgn * (w + c / 2), 0.0, c / 2]) - t * n
@@ -176,7 +176,7 @@ class InsertionEnv(VSWristEnv):
         self._depth = self.pin_depth()
         self._max_depth = max(self._max_depth, self._depth)
         return {"depth": self._depth / self.tp["hole_depth"],
-                "jamming": -self._contact / self.cfg["scales"]["force"]}
+                "jamming": -min(self._contact / self.cfg["scales"]["force"], FORCE_CAP)}
 
     def _tracking_error(self, err):
         return err[1:]  # the RUD reference is driven past the hole bottom on purpose
