@@ -15,8 +15,8 @@ Quick reference (angles rad, torques N m, forces N, base frame = MuJoCo world fr
     sim.loop_closure_error() -> float            # largest weld violation (m or rad)
     s = sim.get_state(); sim.set_state(s)        # exact restart
 
-The springs and the motors' low-pass act inside every physics substep (``model.native`` callbacks), so
-``step`` is one ``mj_step(m, d, n)`` call. Quantities derived from positions (body poses, sensors, actuator
+The springs and the motors' setpoint dynamics act inside every physics substep (``model.native`` callbacks),
+so ``step`` is one ``mj_step(m, d, n)`` call. Quantities derived from positions (body poses, sensors, actuator
 forces) are recomputed lazily with one ``mj_forward`` the first time an accessor needs them after ``step``;
 sensors are evaluated only then (they are disabled inside the substeps to save time).
 """
@@ -216,7 +216,8 @@ class WristSim:
         return self.data.ctrl[self._act_ids].copy()
 
     def motor_filter_states(self) -> np.ndarray:
-        """The low-pass filtered references the position loops track (4,), rad."""
+        """The servo setpoints the position loops track (4,), rad: the rate-limited low-pass of the references,
+        held within kd * speed_limit / kp of the motor angles."""
         return self.data.act[self._act_adr].copy()
 
     def motor_torques(self) -> np.ndarray:
