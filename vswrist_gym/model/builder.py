@@ -19,11 +19,12 @@ Structure (every element named; base frame = world frame, X along the forearm):
   ``kd vmax / kp`` of the motor angle, then a PD position loop ``kp (act - q) - kd qdot`` clamped to the torque
   limit: the loop never commands more than the speed limit and does not wind up when the torque saturates.
   The setpoint dynamics are ``dyntype=user`` (native callback, ``dynprm`` = time constant, speed limit, lead).
-* Tendons ``deflection_A/B/C`` = q1 - theta with the mechanical deflection limit as a tendon limit.
+* Tendons ``deflection_A/B/C`` = q1 - theta with the mechanical deflection limit as a tendon limit: a damped
+  bumper (time constant ``simulation.stop_timeconst``, MuJoCo's default impedance 0.9-0.95).
 * Custom numeric ``vswrist_spring`` = (K, delta0, q1 dof adr x3, motor dof adr x3, q1 qpos adr x3, motor qpos adr
   x3) carries each model's own spring parameters to the process-global callbacks, which ignore any model
   without it (e.g. Gymnasium's Ant in the same process). ``vswrist_motor`` tags the model for the motor
-  low-pass (its time constant and speed limit are each actuator's ``dynprm[0:2]``).
+  setpoint dynamics (time constant, speed limit and lead are each actuator's ``dynprm[0:3]``).
 * Cameras ``front``, ``side``, ``top``; keyframe ``home``.
 """
 
