@@ -283,6 +283,22 @@ def test_bad_agent_specs_give_clear_errors(tmp_path):
     assert res.returncode == 2 and "VSWrist/LoadHold-v0" in res.stderr and "Traceback" not in res.stderr
 
 
+def test_evaluate_writes_a_video(tmp_path):
+    video = tmp_path / "episode.mp4"
+    res = vswrist("evaluate", "--task", TASK, "--agent", "analytic:0", "--episodes", "1", "--seeds", "0",
+                  "--out", tmp_path / "e", "--video", video)
+    assert res.returncode == 0, res.stderr
+    import imageio
+
+    length = json.loads((tmp_path / "e" / "metrics.json").read_text())["episodes"][0]["length"]
+    reader = imageio.get_reader(video)
+    try:
+        assert reader.count_frames() == length + 1  # the reset frame and one per step
+        assert reader.get_meta_data()["fps"] == pytest.approx(50.0)  # the default 50 Hz control rate
+    finally:
+        reader.close()
+
+
 def test_compare_end_to_end(tmp_path):
     args = ["compare", "--task", TASK, "--seeds", "0", "1", "--episodes", "1", "--ppo-timesteps", "512",
             "--sac-timesteps", "200", "--stiffness", "-1", "1", "--out", tmp_path / "cmp", "--no-progress"]

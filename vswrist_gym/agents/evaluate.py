@@ -86,6 +86,8 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
         header["command"] = "vswrist evaluate " + shlex.join(argv)
     if spec.trained is not None:
         header["training_seed"] = spec.trained.seed
+    if video is not None:
+        header["video"] = str(video)
     write_metrics(Path(out), header, records, summary)
     return {**header, "summary": summary, "trace": trace}
 
@@ -120,7 +122,12 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, RunDirError, ValueError) as exc:
         print(f"vswrist evaluate: error: {exc}", file=sys.stderr)
         return 2
+    except RuntimeError as exc:  # the simulation failed (e.g. SimulationError) during an episode
+        print(f"vswrist evaluate: error: the environment failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
     print(f"{doc['agent']} on {doc['task']}: {args.episodes} episodes x seeds {args.seeds}")
     print(format_summary(doc["summary"]))
     print(f"metrics: {Path(args.out) / 'metrics.json'} and metrics.csv")
+    if args.video:
+        print(f"video: {args.video}")
     return 0

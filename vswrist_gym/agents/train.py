@@ -156,9 +156,10 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
                 update_run_json(run_dir, status="failed", error=f"{type(exc).__name__}: {exc}",
                                 num_timesteps=int(model.num_timesteps))
                 latest = latest_checkpoint(run_dir)
+                what = (f"{type(exc).__name__}: {exc}" if not isinstance(exc, (EOFError, ConnectionError))
+                        else "a SubprocVecEnv worker died (its traceback is printed above)")
                 raise TrainingError(
-                    f"training stopped at step {model.num_timesteps} of {cfg.n_timesteps}: {type(exc).__name__}: "
-                    f"{exc}" + (f"; the last checkpoint ({latest.name}) is intact, continue with --resume"
+                    f"training stopped at step {model.num_timesteps} of {cfg.n_timesteps}: {what}" + (f"; the last checkpoint ({latest.name}) is intact, continue with --resume"
                                 if latest else "")) from exc
             finally:
                 eval_env.close()
