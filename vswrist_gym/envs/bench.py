@@ -2,7 +2,9 @@
 
 For every task (default control rate, default config) it reports:
 
-* env steps/s on one core (process pinned to one CPU), random actions drawn beforehand, resets included;
+* env steps per second of CPU time on one core (process pinned to one CPU; CPU time of this process, so that
+  other jobs on a shared machine distort the figures less than wall time would), random actions drawn
+  beforehand, resets included;
 * the physics-alone share: the time spent inside ``WristSim.step`` (springs + motors + ``mj_step`` over the
   control period) during that same run, so the ratio ``env step / physics`` is measured on identical states;
 * the same for ``Ant-v5`` (its ``mj_step`` calls timed the same way), as the reference;
@@ -36,30 +38,33 @@ def _pin_one_core() -> int | None:
         return None
 
 
+_clock = time.process_time  # CPU time of this process (the benchmark is single-threaded and pinned)
+
+
 class _Timer:
-    """Wraps a callable and accumulates the wall time spent in it."""
+    """Wraps a callable and accumulates the CPU time spent in it."""
 
     def __init__(self, fn):
         self.fn, self.total = fn, 0.0
 
     def __call__(self, *args, **kwargs):
-        t0 = time.perf_counter()
+        t0 = _clock()
         try:
             return self.fn(*args, **kwargs)
         finally:
-            self.total += time.perf_counter() - t0
+            self.total += _clock() - t0
 
 
 def _run(env, actions, physics: _Timer) -> tuple[float, float]:
     """Steps through ``actions`` (resetting at episode ends); returns (env steps/s, physics share of time)."""
     env.reset(seed=0)
     physics.total = 0.0
-    t0 = time.perf_counter()
+    t0 = _clock()
     for a in actions:
         _, _, term, trunc, _ = env.step(a)
         if term or trunc:
             env.reset()
-    wall = time.perf_counter() - t0
+    wall = _clock() - t0
     return len(actions) / wall, physics.total / wall
 
 
@@ -125,7 +130,7 @@ def _make_env(name: str):
 
 
 def bench_vec(name: str, steps: int) -> dict:
-    """Steps/s of SB3's SubprocVecEnv with 1 and 2 workers (total env steps over all workers)."""
+    """Steps per wall-clock second of SB3's SubprocVecEnv with 1 and 2 workers (total over all workers)."""
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
     out = {"task": name}
@@ -185,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         rel = f"{r['vs_ant']:.2f}" if "vs_ant" in r else "-"
         print(f"{'VSWrist/' + name:<18}{r['steps_per_s']:>10.0f}{rel:>10}{r['ctrl_hz']:>9.0f}{r['substeps']:>10d}"
               f"{r['overhead_ratio']:>13.2f}")
-    print("env/physics: wall time of env.step over the time spent in the physics step of the same run "
+    print("env/physics: CPU time of env.step over the CPU time spent in the physics step of the same run "
           "(targets: >= Ant-v5, >= 2000 steps/s, <= 1.25)")
     if args.vec:
         try:
