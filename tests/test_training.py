@@ -283,6 +283,14 @@ def test_bad_agent_specs_give_clear_errors(tmp_path):
     assert res.returncode == 2 and "VSWrist/LoadHold-v0" in res.stderr and "Traceback" not in res.stderr
 
 
+def test_bad_env_kwargs_are_a_clear_error_before_anything_is_written(tmp_path):
+    cfg = tmp_path / "ppo.yaml"
+    cfg.write_text(yaml.safe_dump({TASK: {"n_timesteps": 100, "n_envs": 2, "env_kwargs": {"action_mode": "wobble"}}}))
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--config", cfg, "--out", tmp_path / "run")
+    assert res.returncode == 2 and "action_mode" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "run").exists()
+
+
 def test_evaluate_writes_a_video(tmp_path):
     video = tmp_path / "episode.mp4"
     res = vswrist("evaluate", "--task", TASK, "--agent", "analytic:0", "--episodes", "1", "--seeds", "0",

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config
-from vswrist_gym.agents.protocol import METRICS, _clean, evaluate, summarise, write_metrics
+from vswrist_gym.agents.protocol import METRICS, json_safe, evaluate, summarise, write_metrics
 from vswrist_gym.agents.runs import RunDirError, TrainedAgent, read_config, versions
 
 DEFAULT_STIFFNESS_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -61,9 +61,14 @@ def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: b
         for p in todo:
             log(f"[{p['algo']} seed {p['seed']}] {p['action']} to {p['wanted']} steps -> {p['run_dir']}")
             start = time.time()
-            train(env_id, p["algo"], p["run_dir"], config=p["config"], timesteps=p["wanted"], seed=p["seed"],
-                  n_envs=n_envs, resume=p["action"] == "resume", progress=progress, log=log)
-            p["what"] = f"{p['action']} {p['wanted']} steps in {time.time() - start:.0f} s"
+            try:
+                train(env_id, p["algo"], p["run_dir"], config=p["config"], timesteps=p["wanted"], seed=p["seed"],
+                      n_envs=n_envs, resume=p["action"] == "resume", progress=progress, log=log)
+                p["what"] = f"{p['action']} {p['wanted']} steps in {time.time() - start:.0f} s"
+            except TrainingError as exc:
+                p["failed"] = str(exc)
+                p["what"] = f"FAILED: {exc}"
+                log(f"[{p['algo']} seed {p['seed']}] {p['what']}")
         return
     running: list[tuple[dict, subprocess.Popen, float, object]] = []
     queue = list(todo)
@@ -91,8 +96,12 @@ def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: b
                 fh.close()
                 running.remove(item)
                 if proc.returncode != 0:
-                    tail = p["run_dir"].with_suffix(".log").read_text().strip().splitlines()[-3:]
-                    failed.append(f"{p['algo']} seed {p['seed']} (exit {proc.returncode}): " + " / ".join(tail))
+                    tail = p["run_dir"].with_suffix(".log").read_text().strip().splitlines()[-1:]
+                    p["failed"] = f"exit {proc.returncode}: " + " / ".join(tail)
+                    p["what"] = f"FAILED ({p['failed']}); log: {p['run_dir'].with_suffix('.log')}"
+                    log(f"[{p['algo']} seed {p['seed']}] {p['what']}")
+                    if proc.returncode not in (1,):  # 1 = the environment failed; anything else is a usage error
+                        failed.append(f"{p['algo']} seed {p['seed']}: {p['failed']}")
                 else:
                     p["what"] = f"{p['action']} {p['wanted']} steps in {time.time() - start:.0f} s"
                     log(f"[{p['algo']} seed {p['seed']}] {p['what']}")
@@ -141,7 +150,8 @@ def verdicts(rows: dict[str, dict], learned: list[str], baselines: list[str]) ->
     out = {"best_baseline": best}
     for name in learned:
         r = rows[name]["return"]
-        diff = mean_ci([x - y for x, y in zip(r["per_seed"], b["per_seed"])])
+        base_by_seed = dict(zip(b["seeds"], b["per_seed"]))
+        diff = mean_ci([x - base_by_seed[s] for s, x in zip(r["seeds"], r["per_seed"]) if s in base_by_seed])
         paired = (f"; paired difference in return {diff['mean']:+.1f} [{diff['low']:+.1f}, {diff['high']:+.1f}]"
                   if not math.isnan(diff["low"]) else "")
         if any(math.isnan(x) for x in (r["low"], r["high"], b["low"], b["high"])):
@@ -244,6 +254,10 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
                 log(f"[{algo} seed {s}] loaded {run_dir} ({wanted} steps)")
     run_trainings(env_id, plans, jobs, n_envs, progress, log)
     training = {f"{p['algo']}_seed{p['seed']}": p["what"] for p in plans}
+    # a run whose environment failed is reported and left out, not silently dropped
+    failed_runs = {p["run_dir"] for p in plans if p.get("failed")}
+    runs = {a: [d for d in dirs if d not in failed_runs] for a, dirs in runs.items()}
+    algos = [a for a in algos if runs[a]]
     t_train = time.time() - t0
 
     rows: dict[str, dict] = {}
@@ -252,8 +266,9 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
     env_kwargs_seen = set()
     for algo in algos:
         records = []
-        for s, run_dir in zip(seeds, runs[algo]):
+        for run_dir in runs[algo]:
             agent = TrainedAgent(run_dir)
+            s = agent.seed
             env_kwargs_seen.add(json.dumps(agent.cfg.env_kwargs, sort_keys=True))
             recs, tr = evaluate(env_id, lambda env, a=agent: (a.check_env(env), a)[1], [s], episodes,
                                 env_kwargs=agent.cfg.env_kwargs, trace_episode=trace_at)
@@ -296,9 +311,10 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
            "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
            "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
            "command": "vswrist compare " + shlex.join(argv) if argv is not None else None, "traces": traces}
-    (out / "summary.json").write_text(json.dumps(_clean(doc), indent=2))
+    (out / "summary.json").write_text(json.dumps(json_safe(doc), indent=2))
     md = [f"# {header}", "", table, ""]
     md += [f"- {k}: {v}" for k, v in verdict.items()]
+    md += [f"- {name}: {what}" for name, what in training.items() if what.startswith("FAILED")]
     md += ["", f"Wall time {t_total:.0f} s (training {t_train:.0f} s); versions: "
            + ", ".join(f"{k} {v}" for k, v in versions().items() if k != "platform")]
     if argv is not None:
@@ -358,6 +374,9 @@ def main(argv: list[str] | None = None) -> int:
     print(doc["table"])
     for k, v in doc["verdicts"].items():
         print(f"  {k}: {v}")
+    for name, what in doc["training"].items():
+        if what.startswith("FAILED"):
+            print(f"  {name}: {what}")
     out = doc["out"]
     print(f"\ntable: {out / 'table.md'}\nplots: {out / 'learning_curves.png'}, {out / 'traces.png'}"
           f"\nper-episode metrics: {out / 'eval'}/*/metrics.csv")

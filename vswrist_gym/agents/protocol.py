@@ -212,18 +212,18 @@ def summarise(records: list[dict]) -> dict:
         per_seed = [float(np.nanmean([r[name] for r in records if r["seed"] == s]))
                     if not all(math.isnan(r[name]) for r in records if r["seed"] == s) else math.nan
                     for s in seeds]
-        out[name] = {**mean_ci(per_seed), "per_seed": per_seed, "unit": METRICS[name][0]}
+        out[name] = {**mean_ci(per_seed), "per_seed": per_seed, "seeds": seeds, "unit": METRICS[name][0]}
     return out
 
 
-def _clean(obj):
+def json_safe(obj):
     """JSON cannot hold NaN: write null instead."""
     if isinstance(obj, float):
         return None if math.isnan(obj) or math.isinf(obj) else obj
     if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
+        return {k: json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [json_safe(v) for v in obj]
     return obj
 
 
@@ -232,7 +232,7 @@ def write_metrics(out_dir: Path, header: dict, records: list[dict], summary: dic
     json_path, csv_path = out_dir / "metrics.json", out_dir / "metrics.csv"
     doc = {**header, "metrics": {k: {"unit": u, "description": d} for k, (u, d) in METRICS.items()},
            "summary": summary, "episodes": records}
-    json_path.write_text(json.dumps(_clean(doc), indent=2))
+    json_path.write_text(json.dumps(json_safe(doc), indent=2))
     with csv_path.open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=["agent", "seed", "episode", "reset_seed", *METRICS])
         writer.writeheader()

@@ -130,6 +130,17 @@ class EnvFactory:
         return Monitor(env, filename=self.monitor_file)
 
 
+def check_env_kwargs(env_id: str, env_kwargs: dict) -> None:
+    """Build the environment once in this process, so that bad env_kwargs are a clear error, not a dead worker."""
+    import gymnasium as gym
+
+    check_env_id(env_id)
+    try:
+        gym.make(env_id, **env_kwargs).close()
+    except (ValueError, TypeError, KeyError) as exc:
+        raise ConfigError(f"env_kwargs {env_kwargs} rejected by {env_id}: {type(exc).__name__}: {exc}") from None
+
+
 def make_vec_env(cfg: RunConfig, n_envs: int, seed: int, monitor_dir: Path | None = None, prefix: str = "train"):
     """The configured VecEnv (SubprocVecEnv when n_envs > 1 and vec_env is 'subproc'), seeded seed, seed+1, ..."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv

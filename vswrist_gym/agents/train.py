@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, RunConfig, load_config
-from vswrist_gym.agents.runs import (RunDirError, atomic_write_bytes, check_env_id, latest_checkpoint,
+from vswrist_gym.agents.runs import (RunDirError, atomic_write_bytes, check_env_id, check_env_kwargs, latest_checkpoint,
                                      limit_threads, load_model, load_vecnormalize, make_vec_env, model_bytes,
                                      override, read_config, save_checkpoint, update_run_json, versions,
                                      wrap_normalize, write_config)
@@ -100,6 +100,8 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
     command = "vswrist train " + shlex.join(argv) if argv is not None else None
     limit_threads(torch_threads)
     if resume:
+        if config is not None:
+            raise ConfigError("--config cannot be combined with --resume: a resumed run keeps its config.yaml")
         cfg, seed = read_config(run_dir)
         if cfg.env_id != env_id or cfg.algo != algo:
             raise RunDirError(f"{run_dir} holds a {cfg.algo.upper()} run on {cfg.env_id}, not {algo.upper()} on {env_id}")
@@ -110,6 +112,7 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             raise RunDirError(f"{run_dir} already holds a run; continue it with --resume or choose another --out")
         cfg = override(load_config(algo, env_id, config), n_timesteps=timesteps, n_envs=n_envs)
         checkpoint = None
+        check_env_kwargs(cfg.env_id, cfg.env_kwargs)
         run_dir.mkdir(parents=True, exist_ok=True)
     write_config(run_dir, cfg, seed)
     update_run_json(run_dir, seed=seed, versions=versions(), status="running", **({"command": command} if command else {}))
@@ -215,5 +218,5 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
-    print(f"run directory: {run_dir}")
+    print(f"run directory: {run_dir}  (TensorBoard: tensorboard --logdir {run_dir / 'tb'})")
     return 0
