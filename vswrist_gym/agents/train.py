@@ -47,7 +47,13 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
     from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
     class HistoryEvalCallback(EvalCallback):
-        """EvalCallback that keeps the evaluations of earlier invocations when a run is resumed."""
+        """EvalCallback that evaluates on the same episodes every time (the eval env is re-seeded, so the learning
+        curve shows the policy changing, not the episodes) and keeps earlier evaluations when a run is resumed."""
+
+        def _on_step(self) -> bool:
+            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+                self.eval_env.seed(seed + EVAL_SEED_OFFSET)
+            return super()._on_step()
 
         def _init_callback(self) -> None:
             super()._init_callback()
