@@ -49,6 +49,18 @@ def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | 
     return "train", wanted
 
 
+def steps_done(run_dir: Path) -> int:
+    """Environment steps of finished training episodes, from the Monitor logs (cheap progress for subprocesses)."""
+    total = 0
+    for f in (run_dir / "monitor").glob("*.monitor.csv"):
+        try:
+            lines = f.read_text().splitlines()[2:]
+            total += sum(int(float(line.split(",")[1])) for line in lines if line.count(",") >= 2)
+        except (OSError, ValueError, IndexError):
+            pass
+    return total
+
+
 def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: bool, log) -> None:
     """Run the planned trainings: in this process (jobs = 1) or as up to `jobs` concurrent `vswrist train`
     subprocesses (each logs to <run_dir>.log)."""
@@ -73,7 +85,12 @@ def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: b
     running: list[tuple[dict, subprocess.Popen, float, object]] = []
     queue = list(todo)
     failed = []
+    last_report = time.time()
     while queue or running:
+        if running and time.time() - last_report > 30:
+            last_report = time.time()
+            log("  progress: " + ", ".join(f"{p['algo']} seed {p['seed']} {steps_done(p['run_dir']):,}/{p['wanted']:,}"
+                                           for p, *_ in running) + f"; {len(queue)} queued")
         while queue and len(running) < jobs:
             p = queue.pop(0)
             cmd = [sys.executable, "-m", "vswrist_gym.cli", "train", "--task", env_id, "--algo", p["algo"],
