@@ -386,7 +386,6 @@ def test_bench_command_runs(tmp_path, capsys):
     assert r["steps_per_s"] > 0 and r["overhead_ratio"] >= 1.0 and r["substeps"] == 20
 
 
-@pytest.mark.slow
 def test_adapting_stiffness_pays_on_polish():
     """The force rule (stiffness follows the pass's target force) beats every constant stiffness command."""
     from vswrist_gym.envs.probe import probe
