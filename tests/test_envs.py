@@ -407,3 +407,14 @@ def test_every_randomisation_term_on_runs_and_is_seeded():
     k1 = u.params.spring.K
     a.reset(seed=12)
     assert u.params.spring.K != k1
+
+
+def test_human_render_without_display_fails_cleanly(monkeypatch):
+    if sys.platform != "linux":
+        pytest.skip("the display check is Linux-specific")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    env = make("VSWrist/LoadHold-v0", render_mode="human")
+    env.reset(seed=0)
+    with pytest.raises(RuntimeError, match="needs a display"):
+        env.unwrapped.render()

@@ -216,8 +216,9 @@ class VSWristEnv(gym.Env):
                     -math.pi, math.pi),
             ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", self._obs_spring_torques,
                     -tau_bound, tau_bound),
-            ObsTerm("stiffness", 3, "N m/rad", "coupler stiffness of the springs as they are, J_a^T diag(sigma_s(delta)) "
-                    "J_a at the measured posture (RUD-RUD, RUD-FE, FE-FE; paper's formula, no load term)",
+            ObsTerm("stiffness", 3, "N m/rad", "coupler stiffness of the springs as they are, "
+                    "J_a^T diag(sigma_s(delta)) J_a at the measured posture (RUD-RUD, RUD-FE, FE-FE; "
+                    "paper's formula, no load term)",
                     self._obs_stiffness, -sig_bound, sig_bound),
             ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: self.ctrl.lam,
                     -lam_bound, lam_bound),
@@ -587,6 +588,13 @@ class VSWristEnv(gym.Env):
             self._renderer.update_scene(self.data, camera=self.cfg["render"]["camera"])
             return self._renderer.render().copy()
         if self._viewer is None:
+            import os
+            import sys
+            has_display = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+            if sys.platform.startswith("linux") and not has_display:
+                # MuJoCo's GLFW viewer aborts the whole process without a display; fail cleanly instead
+                raise RuntimeError("render_mode='human' needs a display (DISPLAY or WAYLAND_DISPLAY is not set); "
+                                   "use render_mode='rgb_array' with MUJOCO_GL=egl on a headless machine")
             from mujoco import viewer as mj_viewer  # needs a display (GLFW)
             self._viewer = mj_viewer.launch_passive(self.model, self.data)
         self._viewer.sync()

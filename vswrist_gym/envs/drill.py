@@ -24,7 +24,8 @@ class DrillEnv(VSWristEnv):
     task = "drill"
     task_id = "VSWrist/Drill-v0"
     summary = "hold the posture against an oscillating torque and an axial thrust while the PS motor turns the tool"
-    success_text = "RMS RUD/FE error while engaged < {success_error:g} rad and mean elastic energy < {success_energy:g} J"
+    success_text = ("RMS RUD/FE error while engaged < {success_error:g} rad and mean elastic energy "
+                    "< {success_energy:g} J")
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "tool_radius": ("number", 0.001, 0.05),

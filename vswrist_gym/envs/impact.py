@@ -1,10 +1,11 @@
 """``VSWrist/Impact-v0``: follow a flexion/extension motion during which the tool may meet an obstacle.
 
 The tool is heavy (``tool_mass``, not compensated by the controller). The reference moves FE from ``fe_start``
-to ``fe_end`` (minimum jerk, ``move_s``) and back, at a random RUD and PS. In most episodes (``obstacle_probability``) a wall stands across the tool's path at a random fraction of
-the way; the agent is not told where. Adapting stiffness pays: a stiff wrist tracks the free motion closely
-(the tool's weight and inertia), a soft one keeps the contact force low once the reference pushes into the wall, and the
-force/torque sensor tells when contact begins.
+to ``fe_end`` (minimum jerk, ``move_s``) and back, at a random RUD and PS. In most episodes
+(``obstacle_probability``) a wall stands across the tool's path at a random fraction of the way; the agent is
+not told where. Adapting stiffness pays: a stiff wrist tracks the free motion closely (the tool's weight and
+inertia), a soft one keeps the contact force low once the reference pushes into the wall, and the force/torque
+sensor tells when contact begins.
 
 Success: peak contact force below ``success_force`` and RMS posture error over the steps without contact
 below ``success_error``.
@@ -26,7 +27,8 @@ class ImpactEnv(VSWristEnv):
     task = "impact"
     task_id = "VSWrist/Impact-v0"
     summary = "follow an FE motion that may meet an unexpected obstacle; keep the peak force low while tracking"
-    success_text = "peak contact force < {success_force:g} N and RMS posture error without contact < {success_error:g} rad"
+    success_text = ("peak contact force < {success_force:g} N and RMS posture error without contact "
+                    "< {success_error:g} rad")
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "tool_radius": ("number", 0.001, 0.05),

@@ -26,7 +26,8 @@ class LoadHoldEnv(VSWristEnv):
     task = "load_hold"
     task_id = "VSWrist/LoadHold-v0"
     summary = "track posture references while an unknown load (mass, onset, direction) hangs on the hand"
-    success_text = "RMS RUD/FE error over the last {success_window:g} s < {success_error:g} rad and mean elastic energy < {success_energy:g} J"
+    success_text = ("RMS RUD/FE error over the last {success_window:g} s < {success_error:g} rad and mean "
+                    "elastic energy < {success_energy:g} J")
     task_spec = {
         "target_fraction": ("number", 0.0, 1.0),
         "ps_range": ("interval", -np.pi, np.pi),

@@ -28,7 +28,8 @@ class PolishEnv(VSWristEnv):
     task = "polish"
     task_id = "VSWrist/Polish-v0"
     summary = "sweep a polishing tool over a surface of uncertain height and tilt, holding a target force per pass"
-    success_text = "normal force within {force_tolerance:g} N of the pass's target force in >= {success_fraction:.0%} of the steps after {settle_s:g} s"
+    success_text = ("normal force within {force_tolerance:g} N of the pass's target force in "
+                    ">= {success_fraction:.0%} of the steps after {settle_s:g} s")
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "tool_radius": ("number", 0.001, 0.05),
