@@ -325,6 +325,11 @@ def test_compare_end_to_end(tmp_path):
     assert res.returncode == 0, res.stderr
     ev = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert ev["summary"]["return"]["mean"] == pytest.approx(summary["rows"]["analytic:+1.00"]["return"]["mean"])
-    # a second call loads the trained runs instead of training again
-    res = vswrist(*args)
-    assert res.returncode == 0 and "loaded" in res.stdout
+    # a second call loads the trained runs instead of training again, and trains only the new seed (in process)
+    seeds_at = args.index("--seeds")
+    args[seeds_at + 1:seeds_at + 3] = ["0", "1", "2"]
+    res = vswrist(*args, "--jobs", "1")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.count("loaded") == 4 and "ppo seed 2] train" in res.stdout
+    summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
+    assert summary["rows"]["PPO"]["return"]["n"] == 3 and summary["rows"]["SAC"]["return"]["n"] == 3
