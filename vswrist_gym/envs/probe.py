@@ -11,7 +11,7 @@ The rules (observation only):
 * LoadHold, Drill: stiff while the posture error shows a load (above ``ERR_ON`` within the last ``HOLD_S``),
   soft otherwise;
 * Polish: integral control of the stiffness command on the normal force (stiffer below the band, softer above);
-* Impact: stiff in free motion, soft while the tool touches something;
+* Impact: soft while an obstacle may still be ahead, stiffer once a contact has come and gone;
 * Insertion: soft while the pin is jammed (contact force above ``JAM``), stiff otherwise.
 """
 
@@ -25,6 +25,7 @@ CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
 ERR_ON = 0.03   # rad
 JAM = 8.0       # N
+IMPACT_AFTER = 0.5  # stiffness command of the Impact rule once the contact is over
 ORACLE_LOW = 0.0  # stiffness command of the oracle when the task needs no stiffness (the soft end rings)
 SLEW = 4.0      # 1/s, largest rate of change of the stiffness command (full range in 0.5 s)
 HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last exceeded ERR_ON
@@ -51,7 +52,14 @@ def adaptive_policy(env):
             state["s"] = float(np.clip(state["s"] + 0.02 * (goal - contact), -1.0, 1.0))
             s = state["s"]
         elif task == "impact":
-            s = -1.0 if contact > 0.5 else 1.0
+            # soft while an obstacle may still be ahead; once a contact has come and gone (the tool moves away),
+            # stiffer to track the heavy tool
+            if contact > 0.5:
+                state["touched"] = True
+                state["free"] = 0
+            elif state.get("touched"):
+                state["free"] = state.get("free", 0) + 1
+            s = IMPACT_AFTER if state.get("touched") and state.get("free", 0) * u.ctrl_dt > 0.2 else -1.0
         else:  # insertion
             s = -1.0 if contact > JAM else 1.0
         # move the command at a limited rate: a jump in preload shakes the lightly damped wrist
