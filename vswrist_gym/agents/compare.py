@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
 import shutil
 import sys
@@ -257,6 +258,7 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
     seeds = [int(s) for s in seeds]
     timesteps, configs = timesteps or {}, configs or {}
     t0 = time.time()
+    load_start = os.getloadavg()[0]  # other work on the machine slows the wall time: record it
 
     runs: dict[str, list[Path]] = {algo: [] for algo in algos}
     plans = []
@@ -327,12 +329,14 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
     doc = {"task": env_id, "seeds": seeds, "episodes_per_seed": episodes, "stiffness_levels": list(stiffness),
            "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
            "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
+           "load_average_1min": {"start": round(load_start, 2), "end": round(os.getloadavg()[0], 2)},
            "command": "vswrist compare " + shlex.join(argv) if argv is not None else None, "traces": traces}
     (out / "summary.json").write_text(json.dumps(json_safe(doc), indent=2))
     md = [f"# {header}", "", table, ""]
     md += [f"- {k}: {v}" for k, v in verdict.items()]
     md += [f"- {name}: {what}" for name, what in training.items() if what.startswith("FAILED")]
-    md += ["", f"Wall time {t_total:.0f} s (training {t_train:.0f} s); versions: "
+    md += ["", f"Wall time {t_total:.0f} s (training {t_train:.0f} s) on {os.cpu_count()} cores, 1-min load average "
+           f"{load_start:.1f} at start and {os.getloadavg()[0]:.1f} at end; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; versions: "
            + ", ".join(f"{k} {v}" for k, v in versions().items() if k != "platform")]
     if argv is not None:
         md += ["", f"Command: `vswrist compare {shlex.join(argv)}`"]

@@ -64,7 +64,8 @@ def versions() -> dict:
         own = "unknown"
     return {"vswrist_gym": own, "mujoco": mujoco.__version__, "gymnasium": gymnasium.__version__,
             "stable_baselines3": stable_baselines3.__version__, "torch": torch.__version__,
-            "numpy": np.__version__, "python": platform.python_version(), "platform": platform.platform()}
+            "numpy": np.__version__, "python": platform.python_version(), "platform": platform.platform(),
+            "cpu_count": os.cpu_count()}
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
