@@ -101,7 +101,7 @@ def format_summary(summary: dict) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="vswrist evaluate", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="vswrist evaluate", description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
     p.add_argument("--agent", required=True, help="RUN_DIR (from vswrist train), 'analytic' or 'analytic:STIFFNESS'")
     p.add_argument("--episodes", type=int, default=5, help="episodes per seed (default 5)")
