@@ -338,10 +338,12 @@ def test_documented_tables_match_the_code():
 
     from vswrist_gym.envs.table import render_blocks, update
 
-    path = Path(__file__).resolve().parents[1] / "docs" / "environments.md"
-    text = path.read_text()
-    assert update(text, render_blocks()) == text, \
-        "stale tables: run python -m vswrist_gym.envs.table --write docs/environments.md"
+    root = Path(__file__).resolve().parents[1]
+    blocks = render_blocks()
+    for path, required in ((root / "docs" / "environments.md", True), (root / "README.md", False)):
+        text = path.read_text()
+        assert update(text, blocks, required) == text, \
+            f"stale tables: run python -m vswrist_gym.envs.table --write {path.relative_to(root)}"
 
 
 def test_stiffness_observation_is_the_paper_formula_at_the_spring_state():

@@ -82,12 +82,20 @@ def render_blocks() -> dict[str, str]:
     return out
 
 
-def update(text: str, blocks: dict[str, str]) -> str:
+def update(text: str, blocks: dict[str, str], required: bool = True) -> str:
+    """Rewrite the generated blocks of ``text``; ``required=False`` skips blocks the text does not hold
+    (the README carries only some of them)."""
+    found = 0
     for name, body in blocks.items():
         pat = re.compile(rf"(<!-- BEGIN GENERATED: {name} -->\n)(?:.*?\n)?(<!-- END GENERATED: {name} -->)", re.S)
         if not pat.search(text):
-            raise ValueError(f"block '{name}' markers not found")
+            if required:
+                raise ValueError(f"block '{name}' markers not found")
+            continue
+        found += 1
         text = pat.sub(lambda m: m.group(1) + body + "\n" + m.group(2), text)
+    if not found:
+        raise ValueError("no generated-block markers found")
     return text
 
 
@@ -100,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     path = Path(args.path)
     text = path.read_text()
-    new = update(text, render_blocks())
+    new = update(text, render_blocks(), required=path.name != "README.md")
     if args.write:
         path.write_text(new)
         print(f"{path}: generated blocks updated")
