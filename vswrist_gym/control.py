@@ -32,6 +32,11 @@ _HESSIAN_STEP = 1e-5  # rad; central differences of the closed-form J_a (error ~
 
 def _finite_vector(name: str, value, n: int) -> tuple[float, ...]:
     """Validate a reference: ``n`` finite numbers, else a ValueError that names the argument."""
+    if type(value) is np.ndarray and value.shape == (n,) and value.dtype == np.float64:
+        # hot path (the environments pass float64 arrays): no conversions; x - x is 0 only for finite x
+        out = tuple(value.tolist())
+        if all(x - x == 0.0 for x in out):
+            return out
     try:
         arr = np.asarray(value, dtype=float).reshape(-1)
     except (TypeError, ValueError) as exc:
@@ -106,7 +111,7 @@ class AnalyticController:
         az = flo if az < flo else fhi if az > fhi else az
         ps = plo if ps < plo else phi if ps > phi else ps
         self._u, self._ps = (ay, az), ps
-        q1, Ja = self._q1_ja(ay, az)
+        q1, Ja, dOc, dxc = self._posture_kinematics(ay, az)
         N = self._basis(Ja)
         hi = self._tau_max / max(abs(N[0]), abs(N[1]), abs(N[2]))
         if lam is not None and compliance_ref is not None:
@@ -126,7 +131,7 @@ class AnalyticController:
             self.lam = min(max(self.lam, -hi), hi)
         tau = [self.lam * N[k] for k in range(3)]
         if self.gravity_compensation:
-            tg = self._gravity_torques(ay, az, Ja)
+            tg = self._min_norm_torques(Ja, self._gravity_from_derivatives(dOc, dxc))
             tau = [min(max(tau[k] + tg[k], -self._tau_max), self._tau_max) for k in range(3)]
         K2, d0 = 2.0 * self._K, self._delta0
         return np.array([q1[0] + d0 * math.asinh(tau[0] / K2), q1[1] + d0 * math.asinh(tau[1] / K2),
@@ -140,6 +145,12 @@ class AnalyticController:
     # ------------------------------------------------------- fast kinematics
     def _q1_ja(self, ay: float, az: float):
         """Actuated joint angles q1 (3,) and J_a = dq1/du (3 lists of 2), closed form (see module docstring)."""
+        q1, Ja, _, _ = self._posture_kinematics(ay, az)
+        return q1, Ja
+
+    def _posture_kinematics(self, ay: float, az: float):
+        """(q1, J_a, dO_c/du, dx_c/du): ``_q1_ja`` plus the coupler-centre and coupler-axis derivatives (each
+        2 columns of 3), which the gravity compensation reuses rather than recomputing."""
         cy, sy, cz, sz = math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
         mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
         nm = math.sqrt(mx * mx + my * my + mz * mz)
@@ -147,7 +158,8 @@ class AnalyticController:
         r = self._r
         px, py, pz = r * nx, r * ny, r * nz
         dps = []
-        for dmx, dmy, dmz in ((-cz * sy, -sz * sy, -cy), (-sz * cy, cz * cy, 0.0)):
+        dxc = ((-cz * sy, -sz * sy, -cy), (-sz * cy, cz * cy, 0.0))
+        for dmx, dmy, dmz in dxc:
             proj = nx * dmx + ny * dmy + nz * dmz
             f = r / nm
             dps.append((f * (dmx - nx * proj), f * (dmy - ny * proj), f * (dmz - nz * proj)))
@@ -165,7 +177,7 @@ class AnalyticController:
             for dx, dy, dz in dps:
                 row.append(gx * dx + gy * (ce * dy + se * dz) + gz * (-se * dy + ce * dz))
             Ja.append(row)
-        return q1, Ja
+        return q1, Ja, dps, dxc
 
     @staticmethod
     def _basis(Ja) -> tuple[float, float, float]:
@@ -198,7 +210,9 @@ class AnalyticController:
                 Ha[:, :, j] = (plus - minus) / (2 * h)
             Ha = 0.5 * (Ha + Ha.transpose(0, 2, 1))
             N = np.array(self._basis(Ja.tolist()))
-            tg = np.array(self._gravity_torques(u[0], u[1], Ja.tolist())) if self.gravity_compensation else None
+            # the LM dynamics keep the original NumPy evaluation of tau_g: near an unreachable compliance
+            # reference they are so stiff that a last-bit change in tau_g can select another lam
+            tg = self._gravity_torques_reference(u[0], u[1], Ja) if self.gravity_compensation else None
             self._terms_key, self._terms = u, (Ja, N, Ha, tg)
         return self._terms
 
@@ -320,6 +334,25 @@ class AnalyticController:
         return np.array(self._gravity_generalised(ay, az))
 
     def _gravity_generalised(self, ay: float, az: float) -> tuple[float, float]:
+        _, _, dOc, dxc = self._posture_kinematics(ay, az)
+        return self._gravity_from_derivatives(dOc, dxc)
+
+    def _gravity_from_derivatives(self, dOc, dxc) -> tuple[float, float]:
+        """dV_g/du from dO_c/du and dx_c/du (columns j = RUD, FE), scalar arithmetic.
+
+        V_g = -sum m_i g . p_i with p_hand = O_c + L x_c, p_coupler = O_c, so
+        dV_g/du_j = -g . ((m_hand + m_coupler) dO_c/du_j + m_hand L dx_c/du_j)."""
+        gx, gy, gz = self._gravity
+        m_hand, m_coupler = self._masses
+        mo, ml = m_hand + m_coupler, m_hand * self._hand_offset
+        out = []
+        for (ox, oy, oz), (xx, xy, xz) in zip(dOc, dxc):
+            out.append(-(gx * (mo * ox + ml * xx) + gy * (mo * oy + ml * xy) + gz * (mo * oz + ml * xz)))
+        return out[0], out[1]
+
+    def _gravity_torques_reference(self, ay: float, az: float, Ja) -> np.ndarray:
+        """tau_g (3,) by the original NumPy route (outer products, ``np.linalg.solve``): the reference for the
+        scalar fast path of ``step`` and what the LM dynamics use (bit-for-bit as before)."""
         cy, sy, cz, sz = math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
         m = np.array([1.0 + cz * cy, sz * cy, -sy])
         nm = float(np.linalg.norm(m))
@@ -328,16 +361,28 @@ class AnalyticController:
         dOc = self._r / nm * (dxc - np.outer(n, n @ dxc))
         g = np.asarray(self._gravity)
         m_hand, m_coupler = self._masses
-        # V_g = -sum m_i g . p_i; p_hand = O_c + L x_c, p_coupler = O_c
         dV = -(m_hand * (dOc + self._hand_offset * dxc) + m_coupler * dOc).T @ g
-        return float(dV[0]), float(dV[1])
+        J = np.asarray(Ja)
+        w = np.array([float(dV[0]), float(dV[1])])
+        tg = J @ np.linalg.solve(J.T @ J, w)
+        return np.array([float(tg[0]), float(tg[1]), float(tg[2])])
 
     def _gravity_torques(self, ay: float, az: float, Ja) -> tuple[float, float, float]:
         """Minimum-norm spring torques with J_a^T tau_g = dV_g/du (they hold the hand's weight at u)."""
-        J = np.asarray(Ja)
-        w = np.array(self._gravity_generalised(ay, az))
-        tg = J @ np.linalg.solve(J.T @ J, w)
-        return float(tg[0]), float(tg[1]), float(tg[2])
+        return self._min_norm_torques(Ja, self._gravity_generalised(ay, az))
+
+    @staticmethod
+    def _min_norm_torques(Ja, w) -> tuple[float, float, float]:
+        """tau = J_a (J_a^T J_a)^-1 w (3,), the minimum-norm solution of J_a^T tau = w; 2x2 solve by Cramer."""
+        (a0, b0), (a1, b1), (a2, b2) = Ja
+        p = a0 * a0 + a1 * a1 + a2 * a2
+        q = a0 * b0 + a1 * b1 + a2 * b2
+        r = b0 * b0 + b1 * b1 + b2 * b2
+        w0, w1 = w
+        inv_det = 1.0 / (p * r - q * q)
+        x0 = (r * w0 - q * w1) * inv_det
+        x1 = (p * w1 - q * w0) * inv_det
+        return a0 * x0 + b0 * x1, a1 * x0 + b1 * x1, a2 * x0 + b2 * x1
 
 
 def benchmark(params: WristParams | str | None = None, steps: int = 20000) -> dict[str, float]:

@@ -55,6 +55,14 @@ def _import_controller():
     return AnalyticController
 
 
+def _sum_sq(x: np.ndarray) -> float:
+    """float(np.sum(x ** 2)) for the short vectors of the reward (numpy sums fewer than 8 terms in order)."""
+    s = 0.0
+    for v in (x * x).tolist():
+        s += v
+    return s
+
+
 class VSWristEnv(gym.Env):
     """Base class of every VS-Wrist task (do not instantiate directly; use ``gymnasium.make``).
 
@@ -267,11 +275,13 @@ class VSWristEnv(gym.Env):
     def _obs_stiffness(self):
         """The paper's J_a^T Sigma_s J_a from the measured deflections: the stiffness the springs give now
         (loads included), cheap (closed-form J_a, no Hessian); the ~13 % load term is left out."""
-        _, Ja, _ = self.ctrl.kinematics_at(self._posture[:2])
+        # the posture is finite here (``step`` ends the episode otherwise), so skip kinematics_at's checks
+        ay, az = self._posture_list[0], self._posture_list[1]
+        _, Ja = self.ctrl._q1_ja(ay, az)
         s = self.params.spring
         c, d0 = 2.0 * s.K / s.delta0, s.delta0
         s00 = s01 = s11 = 0.0
-        for (a, b), dk in zip(Ja.tolist(), self._defl.tolist()):
+        for (a, b), dk in zip(Ja, self._defl_list):
             sig = c * math.cosh(dk / d0)
             s00 += sig * a * a
             s01 += sig * a * b
@@ -287,7 +297,11 @@ class VSWristEnv(gym.Env):
 
     def _observation(self):
         self._draw_noise()
-        obs = np.clip(self._raw_observation(), self._obs_low, self._obs_high).astype(np.float32)
+        obs = self._raw_observation()
+        # np.clip(obs, low, high) without its Python-level dispatch (same values, NaN passes through)
+        np.maximum(obs, self._obs_low, out=obs)
+        np.minimum(obs, self._obs_high, out=obs)
+        obs = obs.astype(np.float32)
         if self.cfg["obs_mode"] == "dict":
             return {t.name: obs[self.obs_slices[t.name]].copy() for t in self.obs_terms}
         return obs
@@ -341,6 +355,8 @@ class VSWristEnv(gym.Env):
         self._target = np.zeros(3)
         self._posture = np.zeros(3)
         self._defl = np.zeros(3)
+        self._posture_list = [0.0, 0.0, 0.0]
+        self._defl_list = [0.0, 0.0, 0.0]
         self._energy = 0.0
         self._contact = 0.0
         self._peak_contact = 0.0
@@ -413,7 +429,8 @@ class VSWristEnv(gym.Env):
 
     def step(self, action):
         a = check_action(action, self.action_space.shape)
-        a = np.clip(a, -1.0, 1.0)
+        a = np.maximum(a, -1.0)  # = np.clip(a, -1, 1) (a is finite), a new array: the caller's is untouched
+        np.minimum(a, 1.0, out=a)
         theta = self._motor_refs(a)
         self._before_physics(self._t)
         failure = None
@@ -431,7 +448,7 @@ class VSWristEnv(gym.Env):
         self._step += 1
         self._t = self._step * self.ctrl_dt
         self._measure()
-        if failure is None and not (np.isfinite(self._posture).all() and np.isfinite(self._defl).all()):
+        if failure is None and not all(x - x == 0.0 for x in self._posture_list + self._defl_list):  # finite?
             failure = f"non-finite state at t = {self._t:.3f} s"
         if failure is not None:
             # the physics diverged (MuJoCo resets its state when it does): end the episode with the
@@ -450,9 +467,9 @@ class VSWristEnv(gym.Env):
         self._history["contact"].append(self._contact)
         sc = self.cfg["scales"]
         raw = {
-            "tracking": -float(np.sqrt(np.sum(self._tracking_error(err) ** 2))) / sc["tracking"],
+            "tracking": -math.sqrt(_sum_sq(self._tracking_error(err))) / sc["tracking"],
             "energy": -energy / sc["energy"],
-            "action_rate": -float(np.sum((a - self._prev_action) ** 2)) / a.size,
+            "action_rate": -_sum_sq(a - self._prev_action) / a.size,
             "termination": -1.0 if failure is not None else 0.0,
         }
         raw.update(self._task_reward_terms(err))
@@ -464,7 +481,7 @@ class VSWristEnv(gym.Env):
         terminated = failure is not None
         truncated = not terminated and self._step >= self.episode_steps
         obs = self._observation()
-        info = self._info(weighted, final=truncated)
+        info = self._info(weighted, final=truncated, err=err)
         info["posture_error_vec"] = err
         if terminated:
             info["simulation_error"] = failure
@@ -474,12 +491,16 @@ class VSWristEnv(gym.Env):
         """Read the simulator once per step (``posture()`` also brings its sensors up to date)."""
         self._posture = self.sim.posture()
         self._defl = self.sim.deflections()
+        self._posture_list = self._posture.tolist()
+        self._defl_list = self._defl.tolist()
         s = self.params.spring
-        self._energy = float(2.0 * s.K * s.delta0 * np.sum(np.cosh(self._defl / s.delta0) - 1.0))
+        c0, c1, c2 = (np.cosh(self._defl / s.delta0) - 1.0).tolist()
+        self._energy = float(2.0 * s.K * s.delta0 * (c0 + c1 + c2))  # = np.sum of 3 terms, same order
         self._contact = self._contact_force()
 
-    def _info(self, weighted: dict, final: bool) -> dict:
-        err = wrap_angle(self._posture - self._target)
+    def _info(self, weighted: dict, final: bool, err: np.ndarray | None = None) -> dict:
+        if err is None:
+            err = wrap_angle(self._posture - self._target)
         n = max(self._step, 1)
         info = dict(weighted)
         info.update(

@@ -1,0 +1,79 @@
+"""The hot-path shortcuts of the controller and the environments equal the plain computations they replace."""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import vswrist_gym  # noqa: F401  (registers the ids)
+from vswrist_gym.control import AnalyticController, _finite_vector
+from vswrist_gym.envs.base import _sum_sq
+
+
+def _postures(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform([-0.5, -0.9], [0.5, 0.9], size=(n, 2))
+
+
+def test_scalar_gravity_torques_equal_the_numpy_reference_and_a_least_squares_solution():
+    ctrl = AnalyticController(gravity_compensation=True)
+    for ay, az in _postures(50):
+        q1, Ja, dOc, dxc = ctrl._posture_kinematics(float(ay), float(az))
+        fast = np.array(ctrl._min_norm_torques(Ja, ctrl._gravity_from_derivatives(dOc, dxc)))
+        ref = ctrl._gravity_torques_reference(float(ay), float(az), Ja)
+        np.testing.assert_allclose(fast, ref, rtol=1e-12, atol=1e-15 * np.abs(ref).max())
+        # independent: the minimum-norm solution of J_a^T tau = dV_g/du by least squares
+        J = np.array(Ja)
+        w = ctrl.gravity_torque((ay, az))
+        lsq = np.linalg.lstsq(J.T, w, rcond=None)[0]
+        np.testing.assert_allclose(fast, lsq, rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("gravity", [False, True])
+def test_step_equals_the_formula_from_the_reference_terms(gravity):
+    ctrl = AnalyticController(gravity_compensation=gravity)
+    K2, d0, tmax = 2.0 * ctrl.params.spring.K, ctrl.params.spring.delta0, ctrl._tau_max
+    for (ay, az), lam in zip(_postures(30, 1), np.linspace(0.0, 1.0, 30)):
+        theta = ctrl.step(np.array([ay, az, 0.2]), lam=float(lam))
+        ay, az, _ = ctrl.posture_reference  # clipped to the range of motion
+        q1, Ja, N = ctrl.kinematics_at((ay, az))
+        tau = ctrl.lam * N
+        if gravity:
+            tau = np.clip(tau + ctrl._gravity_torques_reference(ay, az, Ja), -tmax, tmax)
+        expected = np.append(q1 + d0 * np.arcsinh(tau / K2), 0.2)
+        np.testing.assert_allclose(theta, expected, rtol=1e-12, atol=1e-14)
+
+
+def test_array_fast_path_of_the_reference_check_still_rejects_nan_and_inf():
+    assert _finite_vector("u", np.array([0.1, -0.2]), 2) == (0.1, -0.2)
+    for bad in (np.array([np.nan, 0.0]), np.array([0.0, np.inf]), np.array([-np.inf, 1.0])):
+        with pytest.raises(ValueError, match="u must be finite"):
+            _finite_vector("u", bad, 2)
+    with pytest.raises(ValueError, match="posture_ref"):
+        AnalyticController().step(np.array([0.0, np.nan, 0.0]), lam=0.1)
+
+
+def test_sum_sq_equals_numpy():
+    rng = np.random.default_rng(3)
+    for n in (1, 3, 4, 6):
+        x = rng.normal(size=n)
+        assert _sum_sq(x) == pytest.approx(float(np.sum(x ** 2)), rel=1e-15)
+
+
+def test_observed_stiffness_equals_the_papers_formula_from_kinematics_at():
+    env = gym.make("VSWrist/LoadHold-v0")
+    u = env.unwrapped
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        _, Ja, _ = u.ctrl.kinematics_at(u._posture[:2])
+        s = u.params.spring
+        sig = 2.0 * s.K / s.delta0 * np.cosh(u._defl / s.delta0)
+        S = Ja.T @ (sig[:, None] * Ja)
+        np.testing.assert_allclose(u._obs_stiffness(), [S[0, 0], S[0, 1], S[1, 1]], rtol=1e-12)
+        energy = 2.0 * s.K * s.delta0 * np.sum(np.cosh(u._defl / s.delta0) - 1.0)
+        assert u._energy == pytest.approx(energy, rel=1e-14)
+        assert math.isfinite(u._energy)
+    env.close()
