@@ -22,7 +22,8 @@ PIPELINE_TASK = "Pendulum-v1"  # a standard Gymnasium task: tests the pipeline w
 
 def vswrist(*args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
     """Run `vswrist ...` as a user would (a fresh interpreter, through the CLI entry point)."""
-    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning",
+           "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     return subprocess.run([sys.executable, "-m", "vswrist_gym.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=cwd, timeout=timeout, env=env)
 
@@ -68,8 +69,8 @@ def test_every_hyperparameter_key_is_used(algo, env_id):
     assert set(cfg.algo_kwargs) == algo_keys
     venv = DummyVecEnv([runs.EnvFactory(env_id, cfg.env_kwargs)])
     try:
-        model = hparams.algo_class(algo)(cfg.policy, runs.wrap_normalize(venv, cfg), policy_kwargs=cfg.policy_kwargs or None,
-                                         device="cpu", **cfg.algo_kwargs)
+        model = hparams.algo_class(algo)(cfg.policy, runs.wrap_normalize(venv, cfg),
+                                         policy_kwargs=cfg.policy_kwargs or None, device="cpu", **cfg.algo_kwargs)
         for key in algo_keys:
             assert _same(getattr(model, key), raw[key]), f"{algo} {env_id}: {key}"
         # run keys: values reach the resolved config unchanged (they are consumed by train(), tested end to end below)
@@ -256,6 +257,40 @@ def test_resume_continues_from_the_last_checkpoint(trained_run, tmp_path):
         assert ev["timesteps"][0] <= 2048 < ev["timesteps"][-1]  # history kept across the resume
 
 
+def test_ctrl_c_leaves_a_complete_checkpoint_that_resumes(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, workers included) saves a checkpoint; --resume continues it."""
+    import signal
+    import time
+
+    out = tmp_path / "run"
+    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning"}
+    proc = subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", "train", "--task", TASK, "--algo", "ppo",
+                             "--timesteps", "1000000", "--out", str(out), "--no-progress"], start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline:  # wait until the workers have finished a few episodes
+            logs = list((out / "monitor").glob("*.csv")) if (out / "monitor").is_dir() else []
+            if logs and sum(f.read_text().count("\n") for f in logs) > 8:
+                break
+            time.sleep(0.3)
+        os.killpg(proc.pid, signal.SIGINT)
+        output, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, output
+    doc = json.loads((out / "run.json").read_text())
+    assert doc["status"] == "interrupted" and "Traceback" not in output
+    latest = runs.latest_checkpoint(out)
+    assert latest is not None and runs.load_model(latest / "model.zip", "ppo").num_timesteps == doc["num_timesteps"]
+    assert not list((out / "checkpoints").glob(".tmp_*"))
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--timesteps", str(doc["num_timesteps"] + 1024),
+                  "--out", out, "--resume", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    assert json.loads((out / "run.json").read_text())["status"] == "finished"
+
+
 def test_missing_or_corrupted_model_gives_a_clear_error(trained_run, tmp_path):
     import shutil
 
@@ -309,7 +344,8 @@ def test_evaluate_writes_a_video(tmp_path):
 
 def test_compare_end_to_end(tmp_path):
     args = ["compare", "--task", TASK, "--seeds", "0", "1", "--episodes", "1", "--ppo-timesteps", "512",
-            "--sac-timesteps", "200", "--stiffness", "-1", "1", "--out", tmp_path / "cmp", "--no-progress"]
+            "--sac-timesteps", "200", "--stiffness", "-1", "1", "--out", tmp_path / "cmp", "--no-progress",
+            "--n-envs", "1"]
     res = vswrist(*args)
     assert res.returncode == 0, res.stderr
     assert "95 %" in res.stdout and "| PPO |" in res.stdout and "| SAC |" in res.stdout

@@ -202,7 +202,8 @@ def plot_learning_curves(path: Path, runs: dict[str, list[Path]], baseline: tupl
             n = min(len(c[0]) for c in curves)
             if n:
                 mean = np.mean([c[1][:n] for c in curves], axis=0)
-                ax.plot(curves[0][0][:n], mean, color=color, lw=2, label=f"{algo.upper()} (mean of {len(curves)} seeds)")
+                ax.plot(curves[0][0][:n], mean, color=color, lw=2,
+                        label=f"{algo.upper()} (mean of {len(curves)} seeds)")
     if baseline is not None:
         ax.axhline(baseline[1], color="k", ls="--", lw=1, label=f"{baseline[0]} (protocol evaluation)")
     ax.set_xlabel("training steps")
@@ -308,8 +309,9 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
             rows[spec.label] = summarise(records)
             baselines.append(spec.label)
             traces[spec.label] = tr
-            write_metrics(out / "eval" / f"analytic_{k:+.2f}", {"task": env_id, "agent": spec.label, "seeds": seeds,
-                                                                 "episodes_per_seed": episodes}, records, rows[spec.label])
+            write_metrics(out / "eval" / f"analytic_{k:+.2f}",
+                          {"task": env_id, "agent": spec.label, "seeds": seeds, "episodes_per_seed": episodes},
+                          records, rows[spec.label])
             log(f"evaluated {spec.label}: return {rows[spec.label]['return']['mean']:.4g}")
     t_total = time.time() - t0
 
@@ -336,7 +338,8 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
     md += [f"- {k}: {v}" for k, v in verdict.items()]
     md += [f"- {name}: {what}" for name, what in training.items() if what.startswith("FAILED")]
     md += ["", f"Wall time {t_total:.0f} s (training {t_train:.0f} s) on {os.cpu_count()} cores, 1-min load average "
-           f"{load_start:.1f} at start and {os.getloadavg()[0]:.1f} at end; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; versions: "
+           f"{load_start:.1f} at start and {os.getloadavg()[0]:.1f} at end; "
+           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; versions: "
            + ", ".join(f"{k} {v}" for k, v in versions().items() if k != "platform")]
     if argv is not None:
         md += ["", f"Command: `vswrist compare {shlex.join(argv)}`"]
@@ -349,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vswrist compare", description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
     p.add_argument("--algos", nargs="+", choices=ALGO_NAMES, default=list(ALGO_NAMES))
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training and evaluation seeds (default 0 1 2)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
+                   help="training and evaluation seeds (default 0 1 2)")
     p.add_argument("--episodes", type=int, default=3, help="evaluation episodes per seed (default 3)")
     p.add_argument("--stiffness", type=float, nargs="+", default=list(DEFAULT_STIFFNESS_LEVELS),
                    help="fixed stiffness commands of the analytic baseline, each in [-1, 1]")

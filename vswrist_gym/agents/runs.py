@@ -115,7 +115,8 @@ class EnvFactory:
     """Picklable environment constructor for SubprocVecEnv workers (each worker limits torch to one thread)."""
 
     def __init__(self, env_id: str, env_kwargs: dict, monitor_file: str | None = None, render_mode=None):
-        self.env_id, self.env_kwargs, self.monitor_file, self.render_mode = env_id, dict(env_kwargs), monitor_file, render_mode
+        self.env_id, self.env_kwargs = env_id, dict(env_kwargs)
+        self.monitor_file, self.render_mode = monitor_file, render_mode
 
     def __call__(self):
         import gymnasium as gym
@@ -327,7 +328,8 @@ class TrainedAgent:
         """The run's spaces must match the environment it is evaluated on."""
         if env.observation_space.shape != self.model.observation_space.shape:
             raise RunDirError(f"{self.run_dir} was trained on observations of shape "
-                              f"{self.model.observation_space.shape}, the environment gives {env.observation_space.shape}")
+                              f"{self.model.observation_space.shape}, the environment gives "
+                              f"{env.observation_space.shape}")
 
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
         if self.vecnorm is not None and self.vecnorm.norm_obs:

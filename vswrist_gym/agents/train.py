@@ -110,7 +110,8 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             raise ConfigError("--config cannot be combined with --resume: a resumed run keeps its config.yaml")
         cfg, seed = read_config(run_dir)
         if cfg.env_id != env_id or cfg.algo != algo:
-            raise RunDirError(f"{run_dir} holds a {cfg.algo.upper()} run on {cfg.env_id}, not {algo.upper()} on {env_id}")
+            raise RunDirError(f"{run_dir} holds a {cfg.algo.upper()} run on {cfg.env_id}, "
+                              f"not {algo.upper()} on {env_id}")
         cfg = override(cfg, n_timesteps=timesteps, n_envs=n_envs)
         checkpoint = latest_checkpoint(run_dir)
     else:
@@ -121,7 +122,8 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
         check_env_kwargs(cfg.env_id, cfg.env_kwargs)
         run_dir.mkdir(parents=True, exist_ok=True)
     write_config(run_dir, cfg, seed)
-    update_run_json(run_dir, seed=seed, versions=versions(), status="running", **({"command": command} if command else {}))
+    update_run_json(run_dir, seed=seed, versions=versions(), status="running",
+                    **({"command": command} if command else {}))
 
     venv = make_vec_env(cfg, cfg.n_envs, seed, monitor_dir=run_dir / "monitor",
                         prefix=f"train_{int(time.time())}")
@@ -167,11 +169,14 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
                 latest = latest_checkpoint(run_dir)
                 what = (f"{type(exc).__name__}: {exc}" if not isinstance(exc, (EOFError, ConnectionError))
                         else "a SubprocVecEnv worker died (its traceback is printed above)")
+                hint = f"; the last checkpoint ({latest.name}) is intact, continue with --resume" if latest else ""
                 raise TrainingError(
-                    f"training stopped at step {model.num_timesteps} of {cfg.n_timesteps}: {what}" + (f"; the last checkpoint ({latest.name}) is intact, continue with --resume"
-                                if latest else "")) from exc
+                    f"training stopped at step {model.num_timesteps} of {cfg.n_timesteps}: {what}{hint}") from exc
             finally:
-                eval_env.close()
+                try:
+                    eval_env.close()
+                except (EOFError, OSError):
+                    pass
             update_run_json(run_dir, train_seconds=round(time.time() - start, 1))
         save_checkpoint(run_dir, model, model.get_vec_normalize_env(), keep=cfg.keep_checkpoints)
         atomic_write_bytes(run_dir / "model.zip", model_bytes(model))
@@ -182,7 +187,10 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             atomic_write_bytes(run_dir / "vecnormalize.pkl", pickle.dumps(vn))
         update_run_json(run_dir, status="finished", num_timesteps=int(model.num_timesteps))
     finally:
-        venv.close()
+        try:
+            venv.close()
+        except (EOFError, OSError):  # workers already gone (Ctrl-C reaches the whole process group)
+            pass
     return run_dir
 
 
