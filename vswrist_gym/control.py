@@ -129,13 +129,14 @@ class AnalyticController:
             self.lam = self._lm_update(c_ref, (-hi, hi))
         else:
             self.lam = min(max(self.lam, -hi), hi)
-        tau = [self.lam * N[k] for k in range(3)]
+        lam_ = self.lam
+        t0, t1, t2 = lam_ * N[0], lam_ * N[1], lam_ * N[2]
         if self.gravity_compensation:
-            tg = self._min_norm_torques(Ja, self._gravity_from_derivatives(dOc, dxc))
-            tau = [min(max(tau[k] + tg[k], -self._tau_max), self._tau_max) for k in range(3)]
-        K2, d0 = 2.0 * self._K, self._delta0
-        return np.array([q1[0] + d0 * math.asinh(tau[0] / K2), q1[1] + d0 * math.asinh(tau[1] / K2),
-                         q1[2] + d0 * math.asinh(tau[2] / K2), ps])
+            g0, g1, g2 = self._min_norm_torques(Ja, self._gravity_from_derivatives(dOc, dxc))
+            tmax = self._tau_max
+            t0, t1, t2 = min(max(t0 + g0, -tmax), tmax), min(max(t1 + g1, -tmax), tmax), min(max(t2 + g2, -tmax), tmax)
+        K2, d0, asinh = 2.0 * self._K, self._delta0, math.asinh
+        return np.array([q1[0] + d0 * asinh(t0 / K2), q1[1] + d0 * asinh(t1 / K2), q1[2] + d0 * asinh(t2 / K2), ps])
 
     @property
     def posture_reference(self) -> np.ndarray:
@@ -150,34 +151,35 @@ class AnalyticController:
 
     def _posture_kinematics(self, ay: float, az: float):
         """(q1, J_a, dO_c/du, dx_c/du): ``_q1_ja`` plus the coupler-centre and coupler-axis derivatives (each
-        2 columns of 3), which the gravity compensation reuses rather than recomputing."""
+        2 columns of 3), which the gravity compensation reuses rather than recomputing. Loops unrolled (the
+        hot path of every env step); the arithmetic is the same, term by term, as the looped original."""
         cy, sy, cz, sz = math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
         mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
         nm = math.sqrt(mx * mx + my * my + mz * mz)
         nx, ny, nz = mx / nm, my / nm, mz / nm
         r = self._r
         px, py, pz = r * nx, r * ny, r * nz
-        dps = []
-        dxc = ((-cz * sy, -sz * sy, -cy), (-sz * cy, cz * cy, 0.0))
-        for dmx, dmy, dmz in dxc:
-            proj = nx * dmx + ny * dmy + nz * dmz
-            f = r / nm
-            dps.append((f * (dmx - nx * proj), f * (dmy - ny * proj), f * (dmz - nz * proj)))
+        ax_, ay_, az_ = -cz * sy, -sz * sy, -cy          # dx_c/d(RUD)
+        bx_, by_, bz_ = -sz * cy, cz * cy, 0.0           # dx_c/d(FE)
+        f = r / nm
+        proj = nx * ax_ + ny * ay_ + nz * az_
+        d0x, d0y, d0z = f * (ax_ - nx * proj), f * (ay_ - ny * proj), f * (az_ - nz * proj)
+        proj = nx * bx_ + ny * by_ + nz * bz_
+        d1x, d1y, d1z = f * (bx_ - nx * proj), f * (by_ - ny * proj), f * (bz_ - nz * proj)
         a, s2 = self._a, self._s * self._s
         q1, Ja = [], []
+        atan2, sqrt = math.atan2, math.sqrt
         for ce, se in self._legs:
-            x0, y0, z0 = px, ce * py + se * pz, -se * py + ce * pz
-            b = math.sqrt(max(s2 - z0 * z0, 1e-300))
-            Y, X = a * x0 + b * y0, b * x0 - a * y0
+            y0, z0 = ce * py + se * pz, -se * py + ce * pz
+            b = sqrt(max(s2 - z0 * z0, 1e-300))
+            Y, X = a * px + b * y0, b * px - a * y0
             R2 = X * X + Y * Y
             gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
-            gz = (X * y0 - Y * x0) * (-z0 / b) / R2
-            q1.append(math.atan2(Y, X))
-            row = []
-            for dx, dy, dz in dps:
-                row.append(gx * dx + gy * (ce * dy + se * dz) + gz * (-se * dy + ce * dz))
-            Ja.append(row)
-        return q1, Ja, dps, dxc
+            gz = (X * y0 - Y * px) * (-z0 / b) / R2
+            q1.append(atan2(Y, X))
+            Ja.append([gx * d0x + gy * (ce * d0y + se * d0z) + gz * (-se * d0y + ce * d0z),
+                       gx * d1x + gy * (ce * d1y + se * d1z) + gz * (-se * d1y + ce * d1z)])
+        return q1, Ja, ((d0x, d0y, d0z), (d1x, d1y, d1z)), ((ax_, ay_, az_), (bx_, by_, bz_))
 
     @staticmethod
     def _basis(Ja) -> tuple[float, float, float]:

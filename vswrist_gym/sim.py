@@ -32,7 +32,7 @@ from .kinematics import LEG_NAMES, RangeOfMotionError, WristKinematics
 from .model import native
 from .model.builder import SceneFn, build_model
 from .params import WristParams, load_params
-from .stiffness import lambda_range, motor_references
+from .stiffness import PostureTerms, lambda_range, motor_references
 
 __all__ = ["WristSim", "SimulationError", "RangeOfMotionError"]
 
@@ -84,6 +84,18 @@ class WristSim:
         self._bad = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQPOS,
                                       mujoco.mjtWarning.mjWARN_BADQVEL)]
         m.opt.disableflags |= _SENSOR_FLAG
+        # views into MjData's fixed buffers (MuJoCo never reallocates them), so that the per-step accessors
+        # skip the attribute look-ups and fancy indexing of the generic path
+        d = self.data
+        self._qpos, self._qvel = d.qpos, d.qvel
+        self._coupler_xmat, self._coupler_cvel = d.xmat[self.coupler_id], d.cvel[self.coupler_id]
+        self._qadr_m3 = self._qadr_motor[:3].copy()
+        a0 = int(self._act_ids[0])
+        contiguous = np.array_equal(self._act_ids, np.arange(a0, a0 + 4)) and \
+            np.array_equal(self._act_adr, np.arange(int(self._act_adr[0]), int(self._act_adr[0]) + 4))
+        self._ctrl_idx = slice(a0, a0 + 4) if contiguous else self._act_ids
+        self._act_idx = slice(int(self._act_adr[0]), int(self._act_adr[0]) + 4) if contiguous else self._act_adr
+        self._euler = None  # (alpha_y, alpha_z) of the coupler, cached after each forward
         self._stale = True
         self.reset()
 
@@ -103,15 +115,18 @@ class WristSim:
         if not (self._ps_range[0] <= ps <= self._ps_range[1]):
             raise RangeOfMotionError(f"ps = {ps:.4f} rad is outside the range of motion "
                                      f"[{self._ps_range[0]:.4f}, {self._ps_range[1]:.4f}] rad")
-        lo, hi = lambda_range(u, self.params)
+        # q1 and N once, for both the range check and the motor references (each would compute N again)
+        q = self.kin.joint_angles(u)
+        terms = PostureTerms(u=u, q1=q[0::4], Ja=None, N=self.kin.internal_torque_basis(u), Ha=None)
+        lo, hi = lambda_range(u, self.params, terms=terms)
         lam = float(lam)
         if not (lo - 1e-9 <= lam <= hi + 1e-9):
             raise ValueError(f"lam = {lam:.6g} N m is outside the range the motor torque and deflection limits "
                              f"allow at u = {u}: [{lo:.6g}, {hi:.6g}] N m")
         m, d = self.model, self.data
         mujoco.mj_resetDataKeyframe(m, d, 0)
-        theta = np.append(motor_references(u, lam, self.params), ps)
-        d.qpos[self._qadr_legs] = self.kin.joint_angles(u)
+        theta = np.append(motor_references(u, lam, self.params, terms=terms), ps)
+        d.qpos[self._qadr_legs] = q
         d.qpos[self._qadr_motor] = theta
         d.ctrl[self._act_ids] = theta
         d.act[self._act_adr] = theta
@@ -138,9 +153,9 @@ class WristSim:
     def set_motor_references(self, theta) -> None:
         """Motor references (4,), rad: PM motors A, B, C (the paper's theta) and the PS motor."""
         theta = np.asarray(theta, dtype=float)
-        if theta.shape != (4,) or not np.all(np.isfinite(theta)):
+        if theta.shape != (4,) or not np.isfinite(theta).all():
             raise ValueError(f"motor references must be 4 finite angles in rad (A, B, C, PS), got {theta!r}")
-        self.data.ctrl[self._act_ids] = theta
+        self.data.ctrl[self._ctrl_idx] = theta
 
     def apply_wrench(self, force=(0.0, 0.0, 0.0), torque=(0.0, 0.0, 0.0)) -> None:
         """External force (N) and torque (N m) on the hand at its centre, base frame, held until changed."""
@@ -170,6 +185,7 @@ class WristSim:
         mujoco.mj_forward(m, self.data)
         m.opt.disableflags |= _SENSOR_FLAG
         self._stale = False
+        self._euler = None
 
     def _sync(self) -> None:
         if self._stale:
@@ -177,28 +193,32 @@ class WristSim:
 
     def posture(self) -> np.ndarray:
         """Measured (RUD, FE, PS), rad: ZYX Euler angles alpha_y, alpha_z of the coupler, and the PS joint."""
-        self._sync()
-        R = self.data.xmat[self.coupler_id]
-        ay = math.asin(max(-1.0, min(1.0, -R[6])))
-        az = math.atan2(R[3], R[0])
-        return np.array([ay, az, self.data.qpos[self._qadr_ps]])
+        if self._stale:
+            self._forward()
+        e = self._euler
+        if e is None:
+            R = self._coupler_xmat.tolist()
+            e = self._euler = (math.asin(max(-1.0, min(1.0, -R[6]))), math.atan2(R[3], R[0]))
+        return np.array([e[0], e[1], self._qpos[self._qadr_ps]])
 
     def posture_rate(self) -> np.ndarray:
         """Time derivative of ``posture()`` (rad/s), from the coupler's angular velocity."""
-        self._sync()
-        d = self.data
-        wx, wy, wz = d.cvel[self.coupler_id, :3]
-        R = d.xmat[self.coupler_id]
-        ay = math.asin(max(-1.0, min(1.0, -R[6])))
-        az = math.atan2(R[3], R[0])
+        if self._stale:
+            self._forward()
+        wx, wy, wz = self._coupler_cvel.tolist()[:3]
+        e = self._euler
+        if e is None:
+            R = self._coupler_xmat.tolist()
+            e = self._euler = (math.asin(max(-1.0, min(1.0, -R[6]))), math.atan2(R[3], R[0]))
+        ay, az = e
         sz, cz = math.sin(az), math.cos(az)
         ax_rate = (cz * wx + sz * wy) / math.cos(ay)
-        return np.array([-sz * wx + cz * wy, wz + math.sin(ay) * ax_rate, d.qvel[self._vadr_ps]])
+        return np.array([-sz * wx + cz * wy, wz + math.sin(ay) * ax_rate, self._qvel[self._vadr_ps]])
 
     def deflections(self) -> np.ndarray:
         """Spring deflections delta = q1 - theta (3,), rad."""
-        q = self.data.qpos
-        return q[self._qadr_q1] - q[self._qadr_motor[:3]]
+        q = self._qpos
+        return q[self._qadr_q1] - q[self._qadr_m3]
 
     def spring_torques(self) -> np.ndarray:
         """Spring torques on the legs' first joints tau_s = -2K sinh(delta/delta0) (3,), N m."""
@@ -206,19 +226,19 @@ class WristSim:
 
     def motor_angles(self) -> np.ndarray:
         """Motor angles (4,), rad: rotors A, B, C (theta) and the PS joint."""
-        return self.data.qpos[self._qadr_motor].copy()
+        return self._qpos[self._qadr_motor]  # fancy indexing: already a copy
 
     def motor_velocities(self) -> np.ndarray:
-        return self.data.qvel[self._vadr_motor].copy()
+        return self._qvel[self._vadr_motor]  # fancy indexing: already a copy
 
     def motor_references(self) -> np.ndarray:
         """The references last set (4,), rad."""
-        return self.data.ctrl[self._act_ids].copy()
+        return self.data.ctrl[self._ctrl_idx].copy()
 
     def motor_filter_states(self) -> np.ndarray:
         """The servo setpoints the position loops track (4,), rad: the rate-limited low-pass of the references,
         held within kd * speed_limit / kp of the motor angles."""
-        return self.data.act[self._act_adr].copy()
+        return self.data.act[self._act_idx].copy()
 
     def motor_torques(self) -> np.ndarray:
         """Motor torques (4,), N m (after the torque limit)."""
