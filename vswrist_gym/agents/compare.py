@@ -219,7 +219,7 @@ def plot_learning_curves(path: Path, runs: dict[str, list[Path]], baseline: tupl
     plt.close(fig)
 
 
-def plot_traces(path: Path, traces: dict[str, dict], title: str):
+def plot_traces(path: Path, traces: dict[str, dict], title: str, highlight: str | None = None):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -231,8 +231,10 @@ def plot_traces(path: Path, traces: dict[str, dict], title: str):
     for label, tr in traces.items():
         if tr is None:
             continue
+        faint = label.startswith("analytic") and label != highlight  # learned agents and the best baseline stand out
         for ax, (key, _) in zip(axes, signals):
-            ax.plot(tr["time"], tr[key], lw=1.2, label=label)
+            ax.plot(tr["time"], tr[key], lw=0.8 if faint else 1.6, alpha=0.45 if faint else 1.0,
+                    ls="--" if faint else "-", label=label + (" (best fixed)" if label == highlight else ""))
     for ax, (_, ylabel) in zip(axes, signals):
         ax.set_ylabel(ylabel, fontsize=8)
         ax.grid(alpha=0.3)
@@ -327,7 +329,8 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, sti
         best = verdict["best_baseline"]
         baseline_line = (best, rows[best]["return"]["mean"])
     plot_learning_curves(out / "learning_curves.png", runs, baseline_line, f"{env_id}: periodic evaluation")
-    plot_traces(out / "traces.png", traces, f"{env_id}: evaluation episode (seed {trace_at[0]}, episode 0)")
+    plot_traces(out / "traces.png", traces, f"{env_id}: evaluation episode (seed {trace_at[0]}, episode 0)",
+                highlight=verdict.get("best_baseline"))
     doc = {"task": env_id, "seeds": seeds, "episodes_per_seed": episodes, "stiffness_levels": list(stiffness),
            "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
            "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
