@@ -95,6 +95,8 @@ class WristSim:
             np.array_equal(self._act_adr, np.arange(int(self._act_adr[0]), int(self._act_adr[0]) + 4))
         self._ctrl_idx = slice(a0, a0 + 4) if contiguous else self._act_ids
         self._act_idx = slice(int(self._act_adr[0]), int(self._act_adr[0]) + 4) if contiguous else self._act_adr
+        self._warn_number = d.warning.number  # live view of the warning counters
+        self._xfrc_hand = d.xfrc_applied[self.hand_id]
         self._euler = None  # (alpha_y, alpha_z) of the coupler, cached after each forward
         self._stale = True
         self.reset()
@@ -159,7 +161,13 @@ class WristSim:
 
     def apply_wrench(self, force=(0.0, 0.0, 0.0), torque=(0.0, 0.0, 0.0)) -> None:
         """External force (N) and torque (N m) on the hand at its centre, base frame, held until changed."""
-        w = np.concatenate([np.asarray(force, dtype=float).ravel(), np.asarray(torque, dtype=float).ravel()])
+        f, t = np.asarray(force, dtype=float), np.asarray(torque, dtype=float)
+        if f.shape == (3,) and t.shape == (3,) and np.isfinite(f).all() and np.isfinite(t).all():
+            x = self._xfrc_hand  # fast path: two plain 3-vectors
+            x[:3] = f
+            x[3:] = t
+            return
+        w = np.concatenate([f.ravel(), t.ravel()])
         if w.shape != (6,) or not np.all(np.isfinite(w)):
             raise ValueError(f"force and torque must be finite 3-vectors (N, N m), got {force!r}, {torque!r}")
         self.data.xfrc_applied[self.hand_id] = w
@@ -170,11 +178,10 @@ class WristSim:
         if n < 1 or abs(n * self.timestep - duration_s) > 1e-9 * max(1.0, duration_s):
             raise ValueError(f"duration_s = {duration_s!r} s must be a positive multiple of the timestep "
                              f"{self.timestep} s")
-        d = self.data
-        mujoco.mj_step(self.model, d, n)
+        mujoco.mj_step(self.model, self.data, n)
         self._stale = True
-        w = d.warning
-        if w[self._bad[0]].number or w[self._bad[1]].number or w[self._bad[2]].number:
+        w = self._warn_number
+        if w[self._bad[0]] or w[self._bad[1]] or w[self._bad[2]]:
             raise SimulationError("MuJoCo reported NaN or huge positions/velocities/accelerations and reset the "
                                   "state; the timestep or constraint settings are too coarse for this motion")
 

@@ -504,7 +504,7 @@ class VSWristEnv(gym.Env):
         n = max(self._step, 1)
         info = dict(weighted)
         info.update(
-            posture_error=float(np.sqrt(err @ err)),
+            posture_error=math.sqrt(float(err @ err)),
             contact_force=float(self._contact),
             peak_contact_force=float(self._peak_contact),
             rms_contact_force=float(math.sqrt(self._sum_contact_sq / n)),
