@@ -97,6 +97,9 @@ class WristSim:
         self._act_idx = slice(int(self._act_adr[0]), int(self._act_adr[0]) + 4) if contiguous else self._act_adr
         self._warn_number = d.warning.number  # live view of the warning counters
         self._xfrc_hand = d.xfrc_applied[self.hand_id]
+        self._tool_R = d.site_xmat[self._tool_site].reshape(3, 3)
+        self._tool_f = d.sensordata[self._force_adr:self._force_adr + 3]
+        self._tool_t = d.sensordata[self._torque_adr:self._torque_adr + 3]
         self._euler = None  # (alpha_y, alpha_z) of the coupler, cached after each forward
         self._stale = True
         self.reset()
@@ -271,12 +274,10 @@ class WristSim:
     def tool_wrench(self) -> np.ndarray:
         """(force N, torque N m) (6,) that the hand exerts on the tool (and whatever is attached to it),
         base frame, torque about the tool mount. Zero with nothing attached."""
-        self._sync()
-        d = self.data
-        R = d.site_xmat[self._tool_site].reshape(3, 3)
-        f = d.sensordata[self._force_adr:self._force_adr + 3]
-        t = d.sensordata[self._torque_adr:self._torque_adr + 3]
-        return np.concatenate([R @ f, R @ t])
+        if self._stale:
+            self._forward()
+        R = self._tool_R
+        return np.concatenate([R @ self._tool_f, R @ self._tool_t])
 
     def loop_closure_error(self) -> float:
         """Largest violation of the loop-closure welds: position (m) or rotation angle (rad), whichever is larger."""

@@ -73,7 +73,8 @@ class DrillEnv(VSWristEnv):
         return self._ps_speed * (0.5 * t * t / r if t < r else t - 0.5 * r)
 
     def _reference(self, t: float) -> np.ndarray:
-        ps = float(np.clip(self._ps0 + self._ps_travel(t), self.posture_map.lo[2], self.posture_map.hi[2]))
+        lo, hi = self.posture_map.lo[2], self.posture_map.hi[2]
+        ps = float(min(max(self._ps0 + self._ps_travel(t), lo), hi))  # = np.clip for a finite scalar
         return np.array([self._u[0], self._u[1], ps])
 
     def _before_physics(self, t: float) -> None:

@@ -14,6 +14,8 @@ Success: the force is in band in at least ``success_fraction`` of the steps afte
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 
 from ._contact import add_mocap_box_body, quat_from_matrix, rot_x
@@ -115,7 +117,7 @@ class PolishEnv(VSWristEnv):
 
     def force_target(self) -> float:
         """Target normal force (N) of the pass under way."""
-        k = int(np.searchsorted(self._pass_start, self._t, side="right")) - 1
+        k = bisect.bisect_right(self._pass_start, self._t) - 1  # = np.searchsorted(..., side="right") - 1
         return float(self._forces[max(k, 0)])
 
     def force_band(self) -> tuple[float, float]:
