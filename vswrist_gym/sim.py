@@ -100,7 +100,6 @@ class WristSim:
         self._tool_R = d.site_xmat[self._tool_site].reshape(3, 3)
         self._tool_f = d.sensordata[self._force_adr:self._force_adr + 3]
         self._tool_t = d.sensordata[self._torque_adr:self._torque_adr + 3]
-        self._euler = None  # (alpha_y, alpha_z) of the coupler, cached after each forward
         self._stale = True
         self.reset()
 
@@ -195,7 +194,6 @@ class WristSim:
         mujoco.mj_forward(m, self.data)
         m.opt.disableflags |= _SENSOR_FLAG
         self._stale = False
-        self._euler = None
 
     def _sync(self) -> None:
         if self._stale:
@@ -205,22 +203,19 @@ class WristSim:
         """Measured (RUD, FE, PS), rad: ZYX Euler angles alpha_y, alpha_z of the coupler, and the PS joint."""
         if self._stale:
             self._forward()
-        e = self._euler
-        if e is None:
-            R = self._coupler_xmat.tolist()
-            e = self._euler = (math.asin(max(-1.0, min(1.0, -R[6]))), math.atan2(R[3], R[0]))
-        return np.array([e[0], e[1], self._qpos[self._qadr_ps]])
+        R = self._coupler_xmat.tolist()
+        ay = math.asin(max(-1.0, min(1.0, -R[6])))
+        az = math.atan2(R[3], R[0])
+        return np.array([ay, az, self._qpos[self._qadr_ps]])
 
     def posture_rate(self) -> np.ndarray:
         """Time derivative of ``posture()`` (rad/s), from the coupler's angular velocity."""
         if self._stale:
             self._forward()
         wx, wy, wz = self._coupler_cvel.tolist()[:3]
-        e = self._euler
-        if e is None:
-            R = self._coupler_xmat.tolist()
-            e = self._euler = (math.asin(max(-1.0, min(1.0, -R[6]))), math.atan2(R[3], R[0]))
-        ay, az = e
+        R = self._coupler_xmat.tolist()
+        ay = math.asin(max(-1.0, min(1.0, -R[6])))
+        az = math.atan2(R[3], R[0])
         sz, cz = math.sin(az), math.cos(az)
         ax_rate = (cz * wx + sz * wy) / math.cos(ay)
         return np.array([-sz * wx + cz * wy, wz + math.sin(ay) * ax_rate, self._qvel[self._vadr_ps]])
