@@ -77,3 +77,49 @@ def test_observed_stiffness_equals_the_papers_formula_from_kinematics_at():
         assert u._energy == pytest.approx(energy, rel=1e-14)
         assert math.isfinite(u._energy)
     env.close()
+
+
+def _stepped_sim():
+    from vswrist_gym.sim import WristSim
+    sim = WristSim()
+    sim.reset(u=(0.2, -0.3), lam=0.3)
+    sim.apply_wrench((1.0, -2.0, 0.5), (0.01, 0.0, -0.02))
+    sim.set_motor_references(sim.motor_references() + np.array([0.05, -0.03, 0.02, 0.1]))
+    sim.step(0.02)
+    return sim
+
+
+def test_sync_kinematics_gives_the_poses_and_rates_of_the_full_forward_and_accessors_still_get_sensors():
+    full, light = _stepped_sim(), _stepped_sim()
+    full.sync()
+    light.sync_kinematics()
+    np.testing.assert_array_equal(light.posture(), full.posture())
+    np.testing.assert_array_equal(light.posture_rate(), full.posture_rate())
+    np.testing.assert_array_equal(light.coupler_pose(), full.coupler_pose())
+    np.testing.assert_array_equal(light.hand_position(), full.hand_position())
+    assert light.loop_closure_error() == full.loop_closure_error()
+    # sensors and forces are not computed by sync_kinematics: the accessors that need them do a full forward
+    np.testing.assert_array_equal(light.tool_wrench(), full.tool_wrench())
+    np.testing.assert_array_equal(light.motor_torques(), full.motor_torques())
+    # and the trajectory does not depend on which sync ran in between
+    for s in (full, light):
+        s.step(0.02)
+    np.testing.assert_array_equal(light.get_state(), full.get_state())
+
+
+def test_light_measurement_of_a_sensorless_task_equals_the_full_one():
+    envs = [gym.make("VSWrist/LoadHold-v0") for _ in range(2)]
+    envs[1].unwrapped.reads_sensors = True  # force the full mj_forward path
+    rng = np.random.default_rng(5)
+    actions = rng.uniform(-1, 1, (60,) + envs[0].action_space.shape).astype(np.float32)
+    outs = []
+    for env in envs:
+        obs, _ = env.reset(seed=7)
+        seq = [obs]
+        for a in actions:
+            obs, r, term, trunc, info = env.step(a)
+            seq += [obs, r, info["posture_error"], info["elastic_energy"]]
+        outs.append(seq)
+        env.close()
+    for x, y in zip(*outs):
+        np.testing.assert_array_equal(x, y)

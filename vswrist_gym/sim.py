@@ -18,7 +18,8 @@ Quick reference (angles rad, torques N m, forces N, base frame = MuJoCo world fr
 The springs and the motors' setpoint dynamics act inside every physics substep (``model.native`` callbacks),
 so ``step`` is one ``mj_step(m, d, n)`` call. Quantities derived from positions (body poses, sensors, actuator
 forces) are recomputed lazily with one ``mj_forward`` the first time an accessor needs them after ``step``;
-sensors are evaluated only then (they are disabled inside the substeps to save time).
+sensors are evaluated only then (they are disabled inside the substeps to save time). ``sync_kinematics()``
+updates only poses and velocities (for callers that read no sensors); ``posture()`` then reads those.
 """
 
 from __future__ import annotations
@@ -100,7 +101,8 @@ class WristSim:
         self._tool_R = d.site_xmat[self._tool_site].reshape(3, 3)
         self._tool_f = d.sensordata[self._force_adr:self._force_adr + 3]
         self._tool_t = d.sensordata[self._torque_adr:self._torque_adr + 3]
-        self._stale = True
+        self._stale = True   # nothing derived from the positions is current (after step)
+        self._light = False  # only poses and velocities are current (after sync_kinematics)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -194,10 +196,30 @@ class WristSim:
         mujoco.mj_forward(m, self.data)
         m.opt.disableflags |= _SENSOR_FLAG
         self._stale = False
+        self._light = False
 
     def _sync(self) -> None:
-        if self._stale:
+        if self._stale or self._light:
             self._forward()
+
+    def sync(self) -> None:
+        """Bring everything derived from the state up to date (body poses, sensors, actuator and constraint
+        forces) with one ``mj_forward``, if a step made them stale. Accessors do this themselves."""
+        if self._stale or self._light:
+            self._forward()
+
+    def sync_kinematics(self) -> None:
+        """After a step, bring only body/site poses and body velocities (``xpos``, ``xmat``, ``xquat``,
+        ``site_xpos``, ``cvel``...) up to date: ``mj_kinematics`` + ``mj_comPos`` + ``mj_comVel``, about a fifth
+        of the cost of ``mj_forward``, for callers that read no sensors. The same values as the full forward;
+        sensors, actuator forces and contacts are recomputed by the next accessor that needs them."""
+        if self._stale:
+            m, d = self.model, self.data
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
+            self._stale = False
+            self._light = True
 
     def posture(self) -> np.ndarray:
         """Measured (RUD, FE, PS), rad: ZYX Euler angles alpha_y, alpha_z of the coupler, and the PS joint."""
@@ -256,27 +278,30 @@ class WristSim:
 
     def coupler_pose(self) -> np.ndarray:
         """Coupler frame T_b^c (4x4)."""
-        self._sync()
+        if self._stale:  # poses: sync_kinematics is enough
+            self._forward()
         T = np.eye(4)
         T[:3, :3] = self.data.xmat[self.coupler_id].reshape(3, 3)
         T[:3, 3] = self.data.xpos[self.coupler_id]
         return T
 
     def hand_position(self) -> np.ndarray:
-        self._sync()
+        if self._stale:
+            self._forward()
         return self.data.xpos[self.hand_id].copy()
 
     def tool_wrench(self) -> np.ndarray:
         """(force N, torque N m) (6,) that the hand exerts on the tool (and whatever is attached to it),
         base frame, torque about the tool mount. Zero with nothing attached."""
-        if self._stale:
+        if self._stale or self._light:
             self._forward()
         R = self._tool_R
         return np.concatenate([R @ self._tool_f, R @ self._tool_t])
 
     def loop_closure_error(self) -> float:
         """Largest violation of the loop-closure welds: position (m) or rotation angle (rad), whichever is larger."""
-        self._sync()
+        if self._stale:
+            self._forward()
         d = self.data
         c = self.coupler_id
         worst = 0.0

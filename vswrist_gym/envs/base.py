@@ -78,6 +78,10 @@ class VSWristEnv(gym.Env):
     success_text: str = ""
     task_spec: dict[str, tuple] = {}
     task_reward_terms: tuple[str, ...] = ()
+    # whether the task reads the simulator's sensors or forces (touch, wrench, contacts) after a step; tasks
+    # that read only poses and velocities set False, and then (unless the observation has ``tool_wrench``)
+    # each step updates only those (``WristSim.sync_kinematics``) instead of a full ``mj_forward``
+    reads_sensors: bool = True
 
     # ------------------------------------------------------------------ construction
     def __init__(self, render_mode: str | None = None, config: Mapping[str, Any] | None = None, **overrides: Any):
@@ -488,7 +492,10 @@ class VSWristEnv(gym.Env):
         return obs, float(reward), terminated, truncated, info
 
     def _measure(self) -> None:
-        """Read the simulator once per step (``posture()`` also brings its sensors up to date)."""
+        """Read the simulator once per step (``posture()`` also brings its sensors up to date, unless
+        neither the task nor the observation reads them: then only poses and velocities are updated)."""
+        if not (self.reads_sensors or "tool_wrench" in self.cfg["observation"]):
+            self.sim.sync_kinematics()
         self._posture = self.sim.posture()
         self._defl = self.sim.deflections()
         self._posture_list = self._posture.tolist()
@@ -605,7 +612,7 @@ class VSWristEnv(gym.Env):
         if self.render_mode == "rgb_array":
             if self._renderer is None:
                 self._renderer = mujoco.Renderer(self.model, self.cfg["render"]["height"], self.cfg["render"]["width"])
-            self.sim.posture()  # brings body poses up to date after a step
+            self.sim.sync()  # brings body poses (and cameras) up to date after a step
             self._renderer.update_scene(self.data, camera=self.cfg["render"]["camera"])
             return self._renderer.render().copy()
         if self._viewer is None:

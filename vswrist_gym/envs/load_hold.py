@@ -24,6 +24,7 @@ def smoothstep(x: float) -> float:
 
 class LoadHoldEnv(VSWristEnv):
     task = "load_hold"
+    reads_sensors = False  # the load is known to the task; it reads poses only (see VSWristEnv.reads_sensors)
     task_id = "VSWrist/LoadHold-v0"
     summary = "track posture references while an unknown load (mass, onset, direction) hangs on the hand"
     success_text = ("RMS RUD/FE error over the last {success_window:g} s < {success_error:g} rad and mean "
