@@ -1,3 +1,7 @@
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first `import mujoco`
+
 import numpy as np
 import pytest
 

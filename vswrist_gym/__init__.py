@@ -4,7 +4,17 @@ Importing the package registers the environment ids (``VSWrist/<Task>-v0``) and 
 points are strings, so MuJoCo, the simulator and torch are imported only when an environment is made.
 """
 
+import os
+import sys
+
 from gymnasium.envs.registration import register, registry
+
+# MuJoCo picks its OpenGL back end once, when `mujoco` is first imported. On a Linux machine without a
+# display its default (GLFW) aborts the process at the first offscreen render, so default to EGL there.
+# Set MUJOCO_GL yourself (or import vswrist_gym before mujoco) to choose another.
+if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    os.environ["MUJOCO_GL"] = "egl"
 
 ENV_IDS = {
     "VSWrist/LoadHold-v0": "vswrist_gym.envs.load_hold:LoadHoldEnv",
