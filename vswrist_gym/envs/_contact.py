@@ -5,6 +5,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from ..kinematics import rot_x, rot_y  # noqa: F401  (re-exported for the task modules)
+
 
 # Contact of the tool with task objects (MuJoCo solref: time constant s, damping ratio). With MuJoCo's default
 # (0.02, 1) the tool sinks deep into thin objects on impact and single samples of the touch sensor reach
@@ -44,12 +46,3 @@ def add_mocap_box_body(spec: mujoco.MjSpec, name: str, boxes, rgba=(0.55, 0.45, 
                       group=1, **kw)
     return body
 
-
-def rot_x(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def rot_y(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
