@@ -184,8 +184,9 @@ def random_reference_run(preset, seconds=10.0, seed=0, posture_rate=None):
             u = u + step * min(1.0, posture_rate * 0.02 / max(np.linalg.norm(step), 1e-12))
             ps += float(np.clip(ps_target - ps, -posture_rate * 0.02, posture_rate * 0.02))
         sim.set_motor_references(np.append(motor_references(u, lambda_range(u, p)[1], p), ps))
-        sim.step(0.02)
-        worst_closure = max(worst_closure, sim.loop_closure_error())
+        for _ in range(int(round(0.02 / sim.timestep))):  # after every substep, not only every 20 ms
+            sim.step(sim.timestep)
+            worst_closure = max(worst_closure, sim.loop_closure_error())
         worst_torque = max(worst_torque, float(np.max(np.abs(sim.motor_torques()) / tl)))
         state = np.concatenate([sim.data.qpos, sim.data.qvel, sim.data.act])
         assert np.all(np.isfinite(state))
@@ -203,12 +204,12 @@ def test_loop_closes_through_ten_seconds_of_random_references_at_the_largest_pre
 @pytest.mark.parametrize("preset", PRESETS)
 def test_reference_jumps_at_the_largest_preload_stay_finite(preset):
     """Reference jumps at the largest preload saturate the motors and swing the wrist hard: no warning or NaN,
-    torques within limits, motors no faster than their speed limit; the welds open by up to ~1e-3 there
+    torques within limits, motors no faster than their speed limit; the welds open by up to ~3e-3 there
     (docs/model.md), more than the 1e-4 of commanded motion."""
     sim, closure, torque = random_reference_run(preset, posture_rate=None)
     assert not sim.warnings()
     assert torque <= 1.0 + 1e-12
-    assert closure < 2e-3
+    assert closure < 5e-3
 
 
 def test_two_simulators_with_different_springs_in_one_process():

@@ -173,8 +173,10 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
                                     seed: int = 1) -> tuple[float, float]:
     """Worst loop-closure error and fastest motor (rad/s) over random posture targets (new one every 0.5 s)
     at the largest preload, gravity on. ``posture_rate`` (rad/s) limits how fast the commanded posture
-    moves; None: jumps. Motor speeds are sampled at every control period."""
+    moves; None: jumps. The closure is checked after every physics substep, motor speeds at every control
+    period."""
     sim = WristSim(params)
+    substeps = int(round(0.02 / sim.timestep))
     rng = np.random.default_rng(seed)
     u = np.zeros(2)
     sim.reset(u=u, lam=lambda_range(u, params)[1])
@@ -189,8 +191,9 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
             u = u + step * min(1.0, posture_rate * 0.02 / max(float(np.linalg.norm(step)), 1e-12))
             ps += float(np.clip(ps_target - ps, -posture_rate * 0.02, posture_rate * 0.02))
         sim.set_motor_references(np.append(motor_references(u, lambda_range(u, params)[1], params), ps))
-        sim.step(0.02)
-        worst = max(worst, sim.loop_closure_error())
+        for _ in range(substeps):
+            sim.step(sim.timestep)
+            worst = max(worst, sim.loop_closure_error())
         fastest = max(fastest, float(np.abs(sim.motor_velocities()).max()))
     return worst, fastest
 
