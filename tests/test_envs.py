@@ -303,6 +303,28 @@ def test_residual_zero_action_is_the_analytic_reference():
     assert u.ctrl.lam == pytest.approx(u.stiffness_map.to_lam(u.cfg["residual"]["stiffness_nominal"]))
 
 
+def test_residual_with_zero_stiffness_scale_ignores_the_stiffness_action():
+    """stiffness_scale 0 (the posture-only ablation): episodes that differ only in the stiffness action are
+    identical, while a different posture action changes them."""
+    runs = []
+    for scale, s, p in ((0.0, -1.0, 0.3), (0.0, 1.0, 0.3), (0.0, 1.0, -0.3), (1.0, -1.0, 0.3)):
+        env = make("VSWrist/Polish-v0", action_mode="residual",
+                   residual={"stiffness_scale": scale, "stiffness_nominal": 0.5})
+        obs, _ = env.reset(seed=3)
+        total = 0.0
+        for _ in range(10):
+            obs, r, *_ = env.step(np.array([p, 0.0, 0.0, s], dtype=np.float32))
+            total += r
+        keep = np.ones(obs.size, dtype=bool)
+        keep[env.unwrapped.obs_slices["prev_action"]] = False  # differs by construction
+        runs.append((obs[keep], total))
+        env.close()
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    assert runs[0][1] == runs[1][1]
+    assert not np.array_equal(runs[1][0], runs[2][0])
+    assert not np.array_equal(runs[0][0], runs[3][0])  # with a stiffness scale, the same actions differ
+
+
 def test_device_randomisation_rebuilds_with_scaled_springs():
     env = make("VSWrist/LoadHold-v0", config={"randomize": {"spring_K": {"enabled": True, "range": [1.5, 1.5]}}})
     u = env.unwrapped
