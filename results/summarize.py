@@ -1,0 +1,74 @@
+"""Cross-task summary of `vswrist compare` results: one markdown table from results/<Task>/summary.json.
+
+    python3 results/summarize.py [DIR ...]          (default: results; also results/ablation if present)
+
+For each task and learned agent: its return and success (mean and Student-t 95 % CI over seeds), the best
+fixed-stiffness analytic baseline (highest mean return) with the same, the paired difference in return on the
+same episodes, and the verdict on the unpaired intervals. Everything is read from the files; nothing is rerun.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from vswrist_gym.agents.protocol import mean_ci
+
+TASK_ORDER = ("Polish", "Drill", "Insertion", "Impact", "LoadHold")
+
+
+def _ci(s: dict, fmt: str = "{:+.1f}") -> str:
+    return f"{fmt.format(s['mean'])} [{fmt.format(s['low'])}, {fmt.format(s['high'])}]"
+
+
+def rows_of(summary: dict) -> list[dict]:
+    rows = summary["rows"]
+    baselines = [k for k in rows if k.startswith("analytic")]
+    best = max(baselines, key=lambda k: rows[k]["return"]["mean"])
+    b = rows[best]
+    out = []
+    for agent in (k for k in rows if not k.startswith("analytic")):
+        a = rows[agent]
+        assert a["return"]["seeds"] == b["return"]["seeds"], "paired difference needs the same seeds"
+        diff = mean_ci([x - y for x, y in zip(a["return"]["per_seed"], b["return"]["per_seed"])])
+        if a["return"]["low"] > b["return"]["high"]:
+            verdict = "**better** (CIs do not overlap)"
+        elif a["return"]["high"] < b["return"]["low"]:
+            verdict = "worse (CIs do not overlap)"
+        else:
+            verdict = "not distinguishable (CIs overlap)"
+        out.append({
+            "task": summary["task"], "agent": agent, "steps": summary["timesteps"].get(agent.lower()),
+            "n": f"{len(summary['seeds'])} x {summary['episodes_per_seed']}",
+            "ret": _ci(a["return"]), "succ": _ci(a["success"], "{:.2f}"), "best": best,
+            "best_ret": _ci(b["return"]), "best_succ": _ci(b["success"], "{:.2f}"),
+            "diff": _ci(diff), "verdict": verdict,
+            "train_s": summary["seconds"]["training"],
+        })
+    return out
+
+
+def table(result_dir: Path) -> str:
+    lines = ["| task | agent | steps/seed | seeds x episodes | training (2 cores) | return | success | "
+             "best fixed baseline | its return | its success | paired difference | verdict |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    found = {p.parent.name: p for p in result_dir.glob("*/summary.json")}
+    for task in sorted(found, key=lambda t: TASK_ORDER.index(t) if t in TASK_ORDER else len(TASK_ORDER)):
+        for r in rows_of(json.loads(found[task].read_text())):
+            steps = f"{r['steps']:,}" if r["steps"] else "?"
+            lines.append(f"| {r['task']} | {r['agent']} | {steps} | {r['n']} | {r['train_s'] / 60:.1f} min | "
+                         f"{r['ret']} | {r['succ']} | {r['best']} | {r['best_ret']} | {r['best_succ']} | "
+                         f"{r['diff']} | {r['verdict']} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> int:
+    dirs = [Path(d) for d in argv] or [p for p in (Path("results"), Path("results/ablation")) if p.is_dir()]
+    for d in dirs:
+        print(f"{d}:\n\n{table(d)}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
