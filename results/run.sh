@@ -6,7 +6,7 @@
 # Every task: PPO (configs/ppo.yaml), 5 seeds x STEPS steps (default 100,000), two runs at a time (about 7 minutes
 # of training per task on 2 cores at 100,000), then PPO and the analytic baseline at five fixed stiffness commands
 # evaluated on the same 20 episodes per seed (100 episodes per agent). Tables go to OUT/<Task> (default results).
-# The longer budget of results/README.md: STEPS=250000 OUT=results/250k bash results/run.sh Drill Insertion ...
+# The longer budget of results/README.md: STEPS=250000 OUT=results/long bash results/run.sh Drill Insertion ...
 set -euo pipefail
 tasks=("$@")
 [ ${#tasks[@]} -gt 0 ] || tasks=(Polish Drill Insertion Impact LoadHold)
