@@ -246,7 +246,7 @@ def plot_traces(path: Path, traces: dict[str, dict], title: str, highlight: str 
     plt.close(fig)
 
 
-def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 3, stiffness=DEFAULT_STIFFNESS_LEVELS,
+def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, stiffness=DEFAULT_STIFFNESS_LEVELS,
             out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
             n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
             jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=print) -> dict:
@@ -357,7 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algos", nargs="+", choices=ALGO_NAMES, default=list(ALGO_NAMES))
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
                    help="training and evaluation seeds (default 0 1 2)")
-    p.add_argument("--episodes", type=int, default=3, help="evaluation episodes per seed (default 3)")
+    p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per seed (default 10)")
     p.add_argument("--stiffness", type=float, nargs="+", default=list(DEFAULT_STIFFNESS_LEVELS),
                    help="fixed stiffness commands of the analytic baseline, each in [-1, 1]")
     p.add_argument("--out", help="output directory (default runs/compare/<task>)")
