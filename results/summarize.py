@@ -1,6 +1,6 @@
 """Cross-task summary of `vswrist compare` results: one markdown table from results/<Task>/summary.json.
 
-    python3 results/summarize.py [DIR ...]          (default: results; also results/ablation if present)
+    python3 results/summarize.py [DIR ...]      (default: results, and results/long, results/ablation if present)
 
 For each task and learned agent: its return and success (mean and Student-t 95 % CI over seeds), the best
 fixed-stiffness analytic baseline (highest mean return) with the same, the paired difference in return on the
@@ -64,7 +64,8 @@ def table(result_dir: Path) -> str:
 
 
 def main(argv: list[str]) -> int:
-    dirs = [Path(d) for d in argv] or [p for p in (Path("results"), Path("results/ablation")) if p.is_dir()]
+    dirs = [Path(d) for d in argv] or [p for p in (Path("results"), Path("results/long"), Path("results/ablation"))
+                             if p.is_dir()]
     for d in dirs:
         print(f"{d}:\n\n{table(d)}\n")
     return 0
