@@ -1,6 +1,6 @@
 """Cross-task summary of `vswrist compare` results: one markdown table from results/<Task>/summary.json.
 
-    python3 results/summarize.py [DIR ...]      (default: results, and results/long, results/ablation if present)
+    python3 results/summarize.py [DIR ...]      (default: results, results/long, results/ablation, results/main_job)
 
 For each task and learned agent: its return and success (mean and Student-t 95 % CI over seeds), the best
 fixed-stiffness analytic baseline (highest mean return) with the same, the paired difference in return on the
@@ -53,7 +53,10 @@ def table(result_dir: Path) -> str:
     lines = ["| task | agent | steps/seed | seeds x episodes | training (2 cores) | return | success | "
              "best fixed baseline | its return | its success | paired difference | verdict |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    found = {p.parent.name: p for p in result_dir.glob("*/summary.json")}
+    if (result_dir / "summary.json").is_file():  # one compare output directory (e.g. results/main_job)
+        found = {result_dir.name: result_dir / "summary.json"}
+    else:  # one sub-directory per task
+        found = {p.parent.name: p for p in result_dir.glob("*/summary.json") if p.parent.name in TASK_ORDER}
     for task in sorted(found, key=lambda t: TASK_ORDER.index(t) if t in TASK_ORDER else len(TASK_ORDER)):
         for r in rows_of(json.loads(found[task].read_text())):
             steps = f"{r['steps']:,}" if r["steps"] else "?"
@@ -64,8 +67,8 @@ def table(result_dir: Path) -> str:
 
 
 def main(argv: list[str]) -> int:
-    dirs = [Path(d) for d in argv] or [p for p in (Path("results"), Path("results/long"), Path("results/ablation"))
-                             if p.is_dir()]
+    defaults = (Path("results"), Path("results/long"), Path("results/ablation"), Path("results/main_job"))
+    dirs = [Path(d) for d in argv] or [p for p in defaults if p.is_dir()]
     for d in dirs:
         print(f"{d}:\n\n{table(d)}\n")
     return 0
