@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from vswrist_gym.agents.protocol import mean_ci
+from vswrist_gym.agents.compare import against_baseline, best_baseline
 
 TASK_ORDER = ("Polish", "Drill", "Insertion", "Impact", "LoadHold")
 
@@ -24,20 +24,15 @@ def _ci(s: dict, fmt: str = "{:+.1f}") -> str:
 
 def rows_of(summary: dict) -> list[dict]:
     rows = summary["rows"]
-    baselines = [k for k in rows if k.startswith("analytic")]
-    best = max(baselines, key=lambda k: rows[k]["return"]["mean"])
+    best = best_baseline(rows, [k for k in rows if k.startswith("analytic")])
     b = rows[best]
+    verdict_text = {"beats": "**better** (CIs do not overlap)", "worse": "worse (CIs do not overlap)",
+                    "overlap": "not distinguishable (CIs overlap)", "no CI": "no CI (fewer than two seeds)"}
     out = []
     for agent in (k for k in rows if not k.startswith("analytic")):
         a = rows[agent]
-        assert a["return"]["seeds"] == b["return"]["seeds"], "paired difference needs the same seeds"
-        diff = mean_ci([x - y for x, y in zip(a["return"]["per_seed"], b["return"]["per_seed"])])
-        if a["return"]["low"] > b["return"]["high"]:
-            verdict = "**better** (CIs do not overlap)"
-        elif a["return"]["high"] < b["return"]["low"]:
-            verdict = "worse (CIs do not overlap)"
-        else:
-            verdict = "not distinguishable (CIs overlap)"
+        diff, kind = against_baseline(rows, agent, best)
+        verdict = verdict_text[kind]
         out.append({
             "task": summary["task"], "agent": agent, "steps": summary["timesteps"].get(agent.lower()),
             "n": f"{len(summary['seeds'])} x {summary['episodes_per_seed']}",

@@ -155,31 +155,46 @@ def table_markdown(rows: list[tuple[str, dict]], metrics=TABLE_METRICS) -> str:
     return "\n".join(lines)
 
 
+def best_baseline(rows: dict[str, dict], baselines: list[str]) -> str | None:
+    """The fixed-stiffness baseline with the highest mean return (None if none has one)."""
+    valid = [b for b in baselines if not math.isnan(rows[b]["return"]["mean"])]
+    return max(valid, key=lambda b: rows[b]["return"]["mean"]) if valid else None
+
+
+def against_baseline(rows: dict[str, dict], name: str, best: str) -> tuple[dict, str]:
+    """Agent ``name`` against baseline ``best``: the paired difference in return (same seeds, same episodes) with
+    its CI, and the verdict of the 95 % CIs of the return over seeds: 'beats', 'worse', 'overlap' or 'no CI'."""
+    from vswrist_gym.agents.protocol import mean_ci
+
+    r, b = rows[name]["return"], rows[best]["return"]
+    base_by_seed = dict(zip(b["seeds"], b["per_seed"]))
+    diff = mean_ci([x - base_by_seed[s] for s, x in zip(r["seeds"], r["per_seed"]) if s in base_by_seed])
+    if any(math.isnan(x) for x in (r["low"], r["high"], b["low"], b["high"])):
+        return diff, "no CI"
+    if r["low"] > b["high"]:
+        return diff, "beats"
+    if r["high"] < b["low"]:
+        return diff, "worse"
+    return diff, "overlap"
+
+
 def verdicts(rows: dict[str, dict], learned: list[str], baselines: list[str]) -> dict:
     """Each learned agent against the best fixed-stiffness baseline (highest mean return): beats / worse / overlap
     by the 95 % CIs of the return over seeds, and the paired difference (same seeds, same episodes) with its CI."""
-    from vswrist_gym.agents.protocol import mean_ci
-
-    valid = [b for b in baselines if not math.isnan(rows[b]["return"]["mean"])]
-    if not valid:
+    best = best_baseline(rows, baselines)
+    if best is None:
         return {}
-    best = max(valid, key=lambda b: rows[b]["return"]["mean"])
-    b = rows[best]["return"]
     out = {"best_baseline": best}
     for name in learned:
-        r = rows[name]["return"]
-        base_by_seed = dict(zip(b["seeds"], b["per_seed"]))
-        diff = mean_ci([x - base_by_seed[s] for s, x in zip(r["seeds"], r["per_seed"]) if s in base_by_seed])
+        diff, kind = against_baseline(rows, name, best)
         paired = (f"; paired difference in return {diff['mean']:+.1f} [{diff['low']:+.1f}, {diff['high']:+.1f}]"
                   if not math.isnan(diff["low"]) else "")
-        if any(math.isnan(x) for x in (r["low"], r["high"], b["low"], b["high"])):
-            out[name] = "no CI (fewer than two seeds)"
-        elif r["low"] > b["high"]:
-            out[name] = f"beats {best} (95 % CIs of the return do not overlap){paired}"
-        elif r["high"] < b["low"]:
-            out[name] = f"worse than {best} (95 % CIs of the return do not overlap){paired}"
-        else:
-            out[name] = f"not distinguishable from {best} (95 % CIs of the return overlap){paired}"
+        out[name] = {
+            "no CI": "no CI (fewer than two seeds)",
+            "beats": f"beats {best} (95 % CIs of the return do not overlap){paired}",
+            "worse": f"worse than {best} (95 % CIs of the return do not overlap){paired}",
+            "overlap": f"not distinguishable from {best} (95 % CIs of the return overlap){paired}",
+        }[kind]
     return out
 
 
