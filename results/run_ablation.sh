@@ -1,17 +1,27 @@
 #!/usr/bin/env bash
-# Ablation: does the learned policy gain from adapting the STIFFNESS, or only from trimming the posture?
-# The same PPO runs as results/run.sh (same hyperparameters, seeds, budget, evaluation episodes), with the
-# residual's stiffness_scale set to 0: the stiffness stays at the task's best constant command and the policy
-# only moves the posture reference. The config is derived from configs/ppo.yaml at run time (one source).
-# Writes results/ablation/<Task>/; models and logs in runs/ablation/<Task>/ (git-ignored).
-# Usage: bash results/run_ablation.sh [TASK ...]
+# Ablations: does the learned policy gain from adapting the STIFFNESS, or only from trimming the posture?
+# The same PPO runs as results/run.sh (same hyperparameters, seeds, budget, evaluation episodes), with one of the
+# residual's two channels switched off (the config is derived from configs/ppo.yaml at run time: one source):
+#   ABLATION=posture_only   (default) residual.stiffness_scale 0: the stiffness stays at the task's best constant
+#                           command and the policy only moves the posture reference -> results/ablation/<Task>
+#   ABLATION=stiffness_only residual.posture_scale 0: the posture reference is the task's target (as the analytic
+#                           baseline's) and the policy only schedules the stiffness -> results/ablation_stiffness/<Task>
+# Models and logs in runs/<out>/<Task>/ (git-ignored).
+# Usage: [ABLATION=posture_only|stiffness_only] bash results/run_ablation.sh [TASK ...]
 set -euo pipefail
 tasks=("$@")
 [ ${#tasks[@]} -gt 0 ] || tasks=(Polish Drill Insertion Impact LoadHold)
-mkdir -p runs/ablation
-cfg=runs/ablation/ppo_posture_only.yaml
-sed 's/stiffness_scale: [0-9.]*/stiffness_scale: 0.0/' vswrist_gym/configs/ppo.yaml > "$cfg"
+mode="${ABLATION:-posture_only}"
+case "$mode" in
+  posture_only) out=ablation; edit='s/stiffness_scale: [0-9.]*/stiffness_scale: 0.0/' ;;
+  stiffness_only) out=ablation_stiffness; edit='s/posture_scale: [0-9.]*/posture_scale: 0.0/' ;;
+  *) echo "ABLATION must be posture_only or stiffness_only, got '$mode'" >&2; exit 2 ;;
+esac
+mkdir -p "runs/$out"
+cfg="runs/$out/ppo_$mode.yaml"
+sed "$edit" vswrist_gym/configs/ppo.yaml > "$cfg"
+cmp -s "$cfg" vswrist_gym/configs/ppo.yaml && { echo "the $mode edit changed nothing in ppo.yaml" >&2; exit 1; }
 for task in "${tasks[@]}"; do
   vswrist compare --task "$task" --algos ppo --seeds 0 1 2 3 4 --episodes 20 --ppo-timesteps 100000 \
-    --ppo-config "$cfg" --out "results/ablation/$task" --runs-dir "runs/ablation/$task" --retrain --no-progress
+    --ppo-config "$cfg" --out "results/$out/$task" --runs-dir "runs/$out/$task" --retrain --no-progress
 done

@@ -303,26 +303,55 @@ def test_residual_zero_action_is_the_analytic_reference():
     assert u.ctrl.lam == pytest.approx(u.stiffness_map.to_lam(u.cfg["residual"]["stiffness_nominal"]))
 
 
-def test_residual_with_zero_stiffness_scale_ignores_the_stiffness_action():
-    """stiffness_scale 0 (the posture-only ablation): episodes that differ only in the stiffness action are
-    identical, while a different posture action changes them."""
+def _residual_runs(residual: dict, actions) -> list:
+    """(observation without prev_action, return) after 10 steps of each constant residual action."""
     runs = []
-    for scale, s, p in ((0.0, -1.0, 0.3), (0.0, 1.0, 0.3), (0.0, 1.0, -0.3), (1.0, -1.0, 0.3)):
-        env = make("VSWrist/Polish-v0", action_mode="residual",
-                   residual={"stiffness_scale": scale, "stiffness_nominal": 0.5})
+    for a in actions:
+        env = make("VSWrist/Polish-v0", action_mode="residual", residual=residual)
         obs, _ = env.reset(seed=3)
         total = 0.0
         for _ in range(10):
-            obs, r, *_ = env.step(np.array([p, 0.0, 0.0, s], dtype=np.float32))
+            obs, r, *_ = env.step(np.array(a, dtype=np.float32))
             total += r
         keep = np.ones(obs.size, dtype=bool)
         keep[env.unwrapped.obs_slices["prev_action"]] = False  # differs by construction
         runs.append((obs[keep], total))
         env.close()
+    return runs
+
+
+def test_residual_with_zero_stiffness_scale_ignores_the_stiffness_action():
+    """stiffness_scale 0 (the posture-only ablation): episodes that differ only in the stiffness action are
+    identical, while a different posture action changes them."""
+    runs = _residual_runs({"stiffness_scale": 0.0, "stiffness_nominal": 0.5},
+                          [(0.3, 0, 0, -1.0), (0.3, 0, 0, 1.0), (-0.3, 0, 0, 1.0)])
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     assert runs[0][1] == runs[1][1]
     assert not np.array_equal(runs[1][0], runs[2][0])
-    assert not np.array_equal(runs[0][0], runs[3][0])  # with a stiffness scale, the same actions differ
+    scaled = _residual_runs({"stiffness_scale": 1.0, "stiffness_nominal": 0.5}, [(0.3, 0, 0, -1.0)])
+    assert not np.array_equal(runs[0][0], scaled[0][0])  # with a stiffness scale, the same actions differ
+
+
+def test_residual_with_zero_posture_scale_ignores_the_posture_action():
+    """posture_scale 0 (the stiffness-only ablation): the posture reference is the task's target whatever the
+    posture action, so only the stiffness action changes the episode; and the stiffness action alone reproduces
+    the analytic baseline at that command (zero residual = best fixed stiffness)."""
+    runs = _residual_runs({"posture_scale": 0.0, "stiffness_nominal": 0.0, "stiffness_scale": 2.0},
+                          [(0.9, -0.9, 0.5, 0.25), (-0.9, 0.9, -0.5, 0.25), (0.9, -0.9, 0.5, -0.25)])
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    assert runs[0][1] == runs[1][1]
+    assert not np.array_equal(runs[0][0], runs[2][0])
+    # the same episode in posture_stiffness mode, commanding the target with stiffness 0 + 2 * 0.25 = 0.5
+    env = make("VSWrist/Polish-v0")
+    u = env.unwrapped
+    obs, _ = env.reset(seed=3)
+    total = 0.0
+    for _ in range(10):
+        obs, r, *_ = env.step(u.reference_to_action(u._target, 0.5))
+        total += r
+    keep = np.ones(obs.size, dtype=bool)
+    keep[u.obs_slices["prev_action"]] = False
+    np.testing.assert_allclose(obs[keep], runs[0][0], atol=1e-5)
 
 
 def test_device_randomisation_rebuilds_with_scaled_springs():

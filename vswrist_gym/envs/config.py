@@ -138,7 +138,7 @@ def validate_common(cfg: dict, defaults: Mapping[str, Any]) -> None:
     for name, v in cfg["scales"].items():
         cfg["scales"][name] = number(f"scales.{name}", v, 0.0, 1e6, lo_open=True)
     _keys("residual.", cfg["residual"], defaults["residual"])
-    number("residual.posture_scale", cfg["residual"]["posture_scale"], 0.0, math.pi, lo_open=True)
+    number("residual.posture_scale", cfg["residual"]["posture_scale"], 0.0, math.pi)  # 0: stiffness-only residual
     number("residual.stiffness_scale", cfg["residual"]["stiffness_scale"], 0.0, 2.0)  # 0: posture-only residual
     number("residual.stiffness_nominal", cfg["residual"]["stiffness_nominal"], -1.0, 1.0)
     _keys("compliance.", cfg["compliance"], defaults["compliance"])
