@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .control import AnalyticController
-from .params import PRESETS, load_params
+from .params import DEVICE_PRESETS, PRESETS, load_params
 from .stiffness import coupler_stiffness
 
 PAPER = {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
@@ -223,7 +223,7 @@ def figure_3c(params, runs: dict, res: dict, out_dir: Path, tag: str = "load", n
     return path
 
 
-def run(out: str | Path, quick: bool = False, presets=PRESETS, gravity_compensation: bool = True) -> dict:
+def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS, gravity_compensation: bool = True) -> dict:
     """Regenerate figures and ``results.json`` into ``out``; returns the results."""
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -292,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vswrist reproduce", description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, help="output directory for the figures and results.json")
     parser.add_argument("--quick", action="store_true", help="reduced run (1.5 s trials) for the test suite")
-    parser.add_argument("--presets", nargs="+", default=list(PRESETS), choices=list(PRESETS))
+    parser.add_argument("--presets", nargs="+", default=list(DEVICE_PRESETS), choices=list(PRESETS))
     parser.add_argument("--no-gravity-compensation", action="store_true",
                         help="run the paper's controller without the hand-weight feed-forward")
     args = parser.parse_args(argv)

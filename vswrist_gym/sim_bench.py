@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from .model import native
-from .params import PRESETS, load_params
+from .params import DEVICE_PRESETS, PRESETS, load_params
 from .sim import WristSim
 from .stiffness import coupler_stiffness, lambda_range, motor_references
 
@@ -200,7 +200,7 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vswrist bench-sim", description=__doc__)
-    parser.add_argument("--params", default=None, help=f"preset ({', '.join(PRESETS)}) or YAML; default: both presets")
+    parser.add_argument("--params", default=None, help=f"preset ({', '.join(PRESETS)}) or YAML; default: paper and paper_knm")
     parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per timing (default 4)")
     parser.add_argument("--rounds", type=int, default=5, help="interleaved timing rounds, best taken (default 3)")
     parser.add_argument("--control-dt", type=float, default=0.02, help="control period of step() calls, s")
@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--solvers", action="store_true",
                         help="also time the full substep under other solvers, Jacobians and integrators")
     args = parser.parse_args(argv)
-    presets = [args.params] if args.params else list(PRESETS)
+    presets = [args.params] if args.params else list(DEVICE_PRESETS)
     print(f"vswrist bench-sim  {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC  mujoco {mujoco.__version__}  "
           f"python {platform.python_version()}  {platform.machine()}  {platform.processor() or ''}")
     print("per substep, best of rounds; ratio = full substep / bare mj_step of the same model, same run "
@@ -261,14 +261,14 @@ def main(argv: list[str] | None = None) -> int:
         print("(commanded posture moving at <= 3 rad/s; in brackets: jumping), speed")
         for preset in presets:
             base = load_params(preset)
-            for dt in (0.0005, 0.001, 0.002):
+            for dt in (0.00025, 0.0005, 0.001, 0.002):
                 p = base.replace(simulation={"timestep": dt, "constraint_timeconst": 2 * dt})
                 errs = [stiffness_error(p, u, f) for u, f in (((0.0, 0.0), 0.9), ((0.5, 0.4), -0.8), ((-0.6, -0.5), 0.3))]
                 closure, speed_rate = closure_under_random_references(p, 3.0)
                 closure_jumps, speed_jumps = closure_under_random_references(p, None)
                 sim = WristSim(p)
                 per = _time_full(sim, _reference_schedule(sim, 64), 0.02, 2.0)
-                print(f"  [{preset}] dt {dt * 1e3:4.1f} ms  stiffness err {max(e for e, _ in errs):6.2%}  "
+                print(f"  [{preset}] dt {dt * 1e3:5.2f} ms  stiffness err {max(e for e, _ in errs):6.2%}  "
                       f"paper formula {min(e for _, e in errs):5.1%}-{max(e for _, e in errs):5.1%}  "
                       f"closure {closure:.1e} (jumps {closure_jumps:.1e})  fastest motor {speed_rate:4.1f} "
                       f"({speed_jumps:4.1f}) rad/s  {1 / per:7.0f} substeps/s  RTF {dt / per:4.0f}x")
