@@ -8,6 +8,7 @@
 # evaluated on the same EPISODES episodes per seed (default 20: 100 episodes per agent). Tables go to OUT/<Task>
 # (default results). The longer runs of results/README.md:
 #   STEPS=400000 EPISODES=50 OUT=results/long bash results/run.sh Drill Impact LoadHold
+#   STEPS=400000 EPISODES=200 OUT=results/long200 bash results/run.sh Impact LoadHold
 set -euo pipefail
 tasks=("$@")
 [ ${#tasks[@]} -gt 0 ] || tasks=(Polish Drill Insertion Impact LoadHold)
