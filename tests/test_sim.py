@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import re
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -375,3 +379,16 @@ def test_divergence_raises_instead_of_silently_resetting(tmp_path, monkeypatch):
     sim.data.qvel[0] = 1e12  # beyond MuJoCo's mjMAXVAL: what a diverging integration produces
     with pytest.raises(SimulationError):
         sim.step(0.01)
+
+
+def test_bench_sim_command_prints_the_overhead_ratio():
+    """``vswrist bench-sim`` as a user runs it (tiny budget): one line per path, with the ratio to bare mj_step
+    near 1 for the compiled callbacks (the springs and motors add little to a substep) and well above it for
+    the pure-Python loop."""
+    out = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "bench-sim", "--params", "paper",
+                          "--seconds", "0.2", "--rounds", "1"], capture_output=True, text=True, timeout=300,
+                         check=True).stdout
+    ratios = dict(re.findall(r"^\s+(full, C callbacks \(default\)|Python loop, mj_step per substep)\s.*?ratio "
+                             r"([0-9.]+)", out, flags=re.M))
+    assert set(ratios) == {"full, C callbacks (default)", "Python loop, mj_step per substep"}, out
+    assert 0.8 < float(ratios["full, C callbacks (default)"]) < float(ratios["Python loop, mj_step per substep"])

@@ -169,6 +169,9 @@ def stiffness_error(params, u, frac: float) -> tuple[float, float]:
             float(np.linalg.norm(S_paper - S) / np.linalg.norm(S)))
 
 
+SEEDS = (0, 1, 2)  # random-target sequences of the closure sweep
+
+
 def closure_under_random_references(params, posture_rate: float | None, seconds: float = 10.0,
                                     seed: int = 1) -> tuple[float, float]:
     """Worst loop-closure error and fastest motor (rad/s) over random posture targets (new one every 0.5 s)
@@ -258,14 +261,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.sweep:
         print("timestep sweep (constraint time constant = 2 substeps): stiffness error vs analytic (max over 3 cases),")
         print("paper-formula error, worst loop closure in 10 s of random posture references at the largest preload")
-        print("(commanded posture moving at <= 3 rad/s; in brackets: jumping), speed")
+        print(f"(worst of seeds {', '.join(map(str, SEEDS))}; ", end="")
+        print("commanded posture moving at <= 3 rad/s; in brackets: jumping), speed")
         for preset in presets:
             base = load_params(preset)
             for dt in (0.00025, 0.0005, 0.001, 0.002):
                 p = base.replace(simulation={"timestep": dt, "constraint_timeconst": 2 * dt})
                 errs = [stiffness_error(p, u, f) for u, f in (((0.0, 0.0), 0.9), ((0.5, 0.4), -0.8), ((-0.6, -0.5), 0.3))]
-                closure, speed_rate = closure_under_random_references(p, 3.0)
-                closure_jumps, speed_jumps = closure_under_random_references(p, None)
+                # worst over three seeds (the same random targets as tests/test_sim.py's seed 0, and two more)
+                runs = [closure_under_random_references(p, rate, seed=seed) for rate in (3.0, None) for seed in SEEDS]
+                moving, jumping = runs[:len(SEEDS)], runs[len(SEEDS):]
+                closure, speed_rate = max(r[0] for r in moving), max(r[1] for r in moving)
+                closure_jumps, speed_jumps = max(r[0] for r in jumping), max(r[1] for r in jumping)
                 sim = WristSim(p)
                 per = _time_full(sim, _reference_schedule(sim, 64), 0.02, 2.0)
                 print(f"  [{preset}] dt {dt * 1e3:5.2f} ms  stiffness err {max(e for e, _ in errs):6.2%}  "
