@@ -203,7 +203,8 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vswrist bench-sim", description=__doc__)
-    parser.add_argument("--params", default=None, help=f"preset ({', '.join(PRESETS)}) or YAML; default: paper and paper_knm")
+    parser.add_argument("--params", default=None,
+                        help=f"preset ({', '.join(PRESETS)}) or YAML; default: paper and paper_knm")
     parser.add_argument("--seconds", type=float, default=4.0, help="simulated seconds per timing (default 4)")
     parser.add_argument("--rounds", type=int, default=5, help="interleaved timing rounds, best taken (default 3)")
     parser.add_argument("--control-dt", type=float, default=0.02, help="control period of step() calls, s")
