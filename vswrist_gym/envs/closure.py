@@ -1,10 +1,10 @@
 """How far the loop-closure welds open inside the environments, with their tools, loads and contacts.
 
 ``python -m vswrist_gym.envs.closure [--steps N] [--tasks ...] [--params ...]`` steps every task with two
-agents, the analytic baseline commanding the observed posture reference (``reference_to_action(target, 0)``, smooth
-references as a controller sends them) and uniformly random actions (a new posture and stiffness every control
-period: reference jumps, as an untrained policy sends them), and prints the worst weld violation (m or rad, as
-``WristSim.loop_closure_error``) after every physics substep. The simulator's own test
+agents, the analytic baseline commanding the observed posture reference (``reference_to_action(target, 0)``:
+smooth references, as a controller sends them) and uniformly random actions (a new posture and stiffness every
+control period: reference jumps, as an untrained policy sends them), and prints the worst weld violation (m or
+rad, as ``WristSim.loop_closure_error``) after every physics substep. The simulator's own test
 (``tests/test_sim.py``) has no tool and no contact; the tasks add heavy tools, walls and holes.
 """
 
