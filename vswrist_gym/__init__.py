@@ -24,6 +24,8 @@ ENV_IDS = {
     "VSWrist/Drill-v0": "vswrist_gym.envs.drill:DrillEnv",
 }
 
+TASKS = tuple(i.split("/")[1].removesuffix("-v0") for i in ENV_IDS)  # ("LoadHold", ...): the short names CLIs take
+
 for _id, _entry in ENV_IDS.items():
     if _id not in registry:
         # episodes end by truncation inside the environment (episode_s of simulated time), so no TimeLimit

@@ -201,6 +201,12 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
     return worst, fastest
 
 
+def _worst_over_seeds(params, posture_rate: float | None) -> tuple[float, float]:
+    """closure_under_random_references, worst of SEEDS (seed 0: the same targets as tests/test_sim.py)."""
+    runs = [closure_under_random_references(params, posture_rate, seed=seed) for seed in SEEDS]
+    return max(r[0] for r in runs), max(r[1] for r in runs)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vswrist bench-sim", description=__doc__)
     parser.add_argument("--params", default=None,
@@ -262,18 +268,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.sweep:
         print("timestep sweep (constraint time constant = 2 substeps): stiffness error vs analytic (max over 3 cases),")
         print("paper-formula error, worst loop closure in 10 s of random posture references at the largest preload")
-        print(f"(worst of seeds {', '.join(map(str, SEEDS))}; ", end="")
-        print("commanded posture moving at <= 3 rad/s; in brackets: jumping), speed")
+        print(f"(worst of seeds {', '.join(map(str, SEEDS))}; commanded posture moving at <= 3 rad/s; "
+              "in brackets: jumping), speed")
         for preset in presets:
             base = load_params(preset)
             for dt in (0.00025, 0.0005, 0.001, 0.002):
                 p = base.replace(simulation={"timestep": dt, "constraint_timeconst": 2 * dt})
                 errs = [stiffness_error(p, u, f) for u, f in (((0.0, 0.0), 0.9), ((0.5, 0.4), -0.8), ((-0.6, -0.5), 0.3))]
-                # worst over three seeds (the same random targets as tests/test_sim.py's seed 0, and two more)
-                runs = [closure_under_random_references(p, rate, seed=seed) for rate in (3.0, None) for seed in SEEDS]
-                moving, jumping = runs[:len(SEEDS)], runs[len(SEEDS):]
-                closure, speed_rate = max(r[0] for r in moving), max(r[1] for r in moving)
-                closure_jumps, speed_jumps = max(r[0] for r in jumping), max(r[1] for r in jumping)
+                closure, speed_rate = _worst_over_seeds(p, 3.0)
+                closure_jumps, speed_jumps = _worst_over_seeds(p, None)
                 sim = WristSim(p)
                 per = _time_full(sim, _reference_schedule(sim, 64), 0.02, 2.0)
                 print(f"  [{preset}] dt {dt * 1e3:5.2f} ms  stiffness err {max(e for e, _ in errs):6.2%}  "

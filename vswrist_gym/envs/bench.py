@@ -26,7 +26,8 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
+from vswrist_gym import TASKS
+
 
 
 def _pin_one_core() -> int | None:

@@ -12,15 +12,14 @@ from __future__ import annotations
 
 import argparse
 
-TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
+from vswrist_gym import TASKS
+
 AGENTS = ("reference", "random")
 
 
 def worst_closure(task: str, agent: str, params: str, steps: int, seed: int = 0) -> float:
     """Worst loop-closure error after any physics substep over ``steps`` env steps (episodes reset as they end)."""
     import gymnasium as gym
-
-    import vswrist_gym  # noqa: F401  (registers the ids)
 
     env = gym.make(f"VSWrist/{task}-v0", params=params)
     u = env.unwrapped
@@ -36,10 +35,10 @@ def worst_closure(task: str, agent: str, params: str, steps: int, seed: int = 0)
     try:
         obs, _ = env.reset(seed=seed)
         env.action_space.seed(seed)
+        sim.step = step_checked
         for _ in range(steps):
             if sim is not u.sim:  # domain randomisation may rebuild the simulator at reset
                 raise RuntimeError("the simulator was rebuilt; run with device randomisation off")
-            sim.step = step_checked
             a = env.action_space.sample() if agent == "random" else u.reference_to_action(obs[target], 0.0)
             obs, _, terminated, truncated, _ = env.step(a)
             if terminated or truncated:

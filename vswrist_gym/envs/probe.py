@@ -21,8 +21,9 @@ import argparse
 
 import numpy as np
 
+from vswrist_gym import TASKS
+
 CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
-TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
 ERR_ON = 0.03   # rad
 JAM = 8.0       # N
 IMPACT_AFTER = 0.5  # stiffness command of the Impact rule once the contact is over

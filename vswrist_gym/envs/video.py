@@ -20,7 +20,8 @@ import sys
 
 import numpy as np
 
-TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
+from vswrist_gym import TASKS
+
 
 
 def reference_agent(env, stiffness: float):
