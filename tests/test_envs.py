@@ -434,9 +434,14 @@ def test_bench_command_runs(tmp_path, capsys):
     from vswrist_gym.envs import bench
 
     path = tmp_path / "bench.json"
-    assert bench.main(["--tasks", "Drill", "--steps", "20", "--repeats", "1", "--no-ant", "--json", str(path)]) == 0
+    assert bench.main(["--tasks", "Drill", "--steps", "20", "--repeats", "1", "--no-ant", "--breakdown",
+                       "--json", str(path)]) == 0
     r = json.loads(path.read_text())["envs"][0]
     assert r["steps_per_s"] > 0 and r["overhead_ratio"] >= 1.0 and r["substeps"] == 20
+    # every timed part of the breakdown was actually reached (Drill reads sensors: a full mj_forward per step)
+    parts = r["breakdown_us"]
+    assert set(parts) == {"physics", "sensor update", "controller", "observation", "rest"}
+    assert all(parts[k] > 0.0 for k in ("physics", "sensor update", "controller", "observation"))
 
 
 def test_adapting_stiffness_pays_on_polish():
@@ -445,6 +450,19 @@ def test_adapting_stiffness_pays_on_polish():
 
     r = probe("Polish", episodes=8)
     assert r["adaptive"][0] > max(v[0] for v in r["constant"].values())
+
+
+def test_probe_term_sums_add_up_to_the_return():
+    """The probe's per-term breakdown (``--terms``) accounts for the whole mean return, term by term."""
+    import gymnasium as gym
+
+    from vswrist_gym.envs.probe import constant_policy, evaluate
+
+    env = gym.make("VSWrist/Impact-v0")
+    terms: dict = {}
+    ret, _ = evaluate(env, lambda: constant_policy(env, 0.5), range(2), terms)
+    assert {"tracking", "force", "energy"} <= set(terms)
+    assert terms["force"] < 0.0 and sum(terms.values()) == pytest.approx(ret, rel=1e-9, abs=1e-9)
 
 
 def test_every_randomisation_term_on_runs_and_is_seeded():

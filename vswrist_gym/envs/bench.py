@@ -8,6 +8,11 @@ For every task (default control rate, default config) it reports:
 * the physics-alone share: the time spent inside ``WristSim.step`` (springs + motors + ``mj_step`` over the
   control period) during that same run, so the ratio ``env step / physics`` is measured on identical states;
 * the same for ``Ant-v5`` (its ``mj_step`` calls timed the same way), as the reference;
+* the time per step outside the physics (us), next to the budgets the two relative targets leave for it:
+  ``0.25 x physics`` (env/physics <= 1.25) and ``Ant-v5's step - physics`` (as fast as Ant-v5);
+* optionally (``--breakdown``) where that time goes, from a second run with more timers: the sensor update
+  after the step (``mj_forward``), the analytic controller, the observation, and the rest (action checks,
+  task logic, rewards, info, Gymnasium's wrappers);
 * optionally (``--vec``) the scaling with stable-baselines3's ``SubprocVecEnv`` on 1 and 2 worker processes.
 
 Each figure is the median of ``--repeats`` runs. Speeds depend on the machine and on what else runs on it;
@@ -69,7 +74,20 @@ def _run(env, actions, physics: _Timer) -> tuple[float, float]:
     return len(actions) / wall, physics.total / wall
 
 
-def bench_task(name: str, steps: int, repeats: int) -> dict:
+def _summary(name: str, runs: list[tuple[float, float]], ctrl_hz: float, substeps: int) -> dict:
+    sps = statistics.median(r[0] for r in runs)
+    share = statistics.median(r[1] for r in runs)
+    return {"task": name, "steps_per_s": sps, "physics_share": share, "overhead_ratio": 1.0 / share,
+            "ctrl_hz": ctrl_hz, "substeps": substeps, "physics_steps_per_s": sps * substeps,
+            "physics_us": 1e6 * share / sps, "other_us": 1e6 * (1.0 - share) / sps}
+
+
+# the parts of the time outside the physics that ``--breakdown`` times separately: (label, owner, method)
+_PARTS = (("sensor update", "sim", "_forward"), ("sensor update", "sim", "sync_kinematics"),
+          ("controller", "ctrl", "step"), ("observation", "env", "_observation"))
+
+
+def bench_task(name: str, steps: int, repeats: int, breakdown: bool = False) -> dict:
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401  (registers the ids)
@@ -82,10 +100,25 @@ def bench_task(name: str, steps: int, repeats: int) -> dict:
     actions = rng.uniform(-1, 1, (steps,) + env.action_space.shape).astype(np.float32)
     _run(env, actions[: min(200, steps)], timer)  # warm-up
     runs = [_run(env, actions, timer) for _ in range(repeats)]
-    sps = statistics.median(r[0] for r in runs)
-    share = statistics.median(r[1] for r in runs)
-    out = {"task": name, "steps_per_s": sps, "physics_share": share, "overhead_ratio": 1.0 / share,
-           "ctrl_hz": 1.0 / u.ctrl_dt, "substeps": u.n_substeps, "physics_steps_per_s": sps * u.n_substeps}
+    out = _summary(name, runs, 1.0 / u.ctrl_dt, u.n_substeps)
+    if breakdown:
+        # a separate run, so that the extra timers do not slow the headline figures; parts in us per env step
+        owners = {"sim": u.sim, "ctrl": u.ctrl, "env": u}
+        parts = []
+        for label, owner, method in _PARTS:
+            t = _Timer(getattr(owners[owner], method))
+            setattr(owners[owner], method, t)
+            parts.append((label, t))
+        _run(env, actions, timer)  # warm-up with the timers
+        for _, t in parts:
+            t.total = 0.0
+        sps, share = _run(env, actions, timer)
+        step_us = 1e6 / sps
+        split: dict[str, float] = {"physics": share * step_us}
+        for label, t in parts:
+            split[label] = split.get(label, 0.0) + 1e6 * t.total / len(actions)
+        split["rest"] = step_us - sum(split.values())
+        out["breakdown_us"] = split
     env.close()
     return out
 
@@ -113,11 +146,8 @@ def bench_ant(steps: int, repeats: int) -> dict | None:
         runs = [_run(env, actions, timer) for _ in range(repeats)]
     finally:
         me.mujoco.mj_step = original
-    sps = statistics.median(r[0] for r in runs)
-    share = statistics.median(r[1] for r in runs)
     env.close()
-    return {"task": "Ant-v5", "steps_per_s": sps, "physics_share": share, "overhead_ratio": 1.0 / share,
-            "ctrl_hz": 1.0 / u.dt, "substeps": u.frame_skip, "physics_steps_per_s": sps * u.frame_skip}
+    return _summary("Ant-v5", runs, 1.0 / u.dt, u.frame_skip)
 
 
 def _make_env(name: str):
@@ -161,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per environment; the median is reported")
     ap.add_argument("--no-ant", action="store_true", help="skip the Ant-v5 reference")
     ap.add_argument("--vec", action="store_true", help="also measure SubprocVecEnv scaling on 1 and 2 workers")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="also time the parts of each task's step outside the physics (a separate run)")
     ap.add_argument("--json", metavar="PATH", help="write the results as JSON")
     args = ap.parse_args(argv)
     if args.steps < 10 or args.repeats < 1:
@@ -175,24 +207,39 @@ def main(argv: list[str] | None = None) -> int:
     ant = None if args.no_ant else bench_ant(args.steps, args.repeats)
     if ant is not None:
         results["ant"] = ant
-    header = f"{'env':<18}{'steps/s':>10}{'x Ant-v5':>10}{'ctrl Hz':>9}{'substeps':>10}{'env/physics':>13}"
+    header = (f"{'env':<18}{'steps/s':>9}{'x Ant-v5':>9}{'ctrl Hz':>8}{'substeps':>9}{'env/physics':>12}"
+              f"{'physics us':>11}{'other us':>9}{'budget 1.25':>12}{'budget Ant':>11}")
     print(header)
     print("-" * len(header))
-    if ant is not None and "error" not in ant:
-        print(f"{'Ant-v5':<18}{ant['steps_per_s']:>10.0f}{1.0:>10.2f}{ant['ctrl_hz']:>9.0f}{ant['substeps']:>10d}"
-              f"{ant['overhead_ratio']:>13.2f}")
+    ant_ok = ant is not None and "error" not in ant
+
+    def row(label: str, r: dict, rel: str) -> None:
+        budget_ratio = 0.25 * r["physics_us"]
+        budget_ant = f"{1e6 / ant['steps_per_s'] - r['physics_us']:.0f}" if ant_ok and r is not ant else "-"
+        print(f"{label:<18}{r['steps_per_s']:>9.0f}{rel:>9}{r['ctrl_hz']:>8.0f}{r['substeps']:>9d}"
+              f"{r['overhead_ratio']:>12.2f}{r['physics_us']:>11.0f}{r['other_us']:>9.0f}{budget_ratio:>12.0f}"
+              f"{budget_ant:>11}")
+
+    if ant_ok:
+        row("Ant-v5", ant, "1.00")
     elif ant is not None:
         print(f"Ant-v5 unavailable: {ant['error']}")
     for name in args.tasks:
-        r = bench_task(name, args.steps, args.repeats)
-        if ant is not None and "error" not in ant:
+        r = bench_task(name, args.steps, args.repeats, breakdown=args.breakdown)
+        if ant_ok:
             r["vs_ant"] = r["steps_per_s"] / ant["steps_per_s"]
         results["envs"].append(r)
-        rel = f"{r['vs_ant']:.2f}" if "vs_ant" in r else "-"
-        print(f"{'VSWrist/' + name:<18}{r['steps_per_s']:>10.0f}{rel:>10}{r['ctrl_hz']:>9.0f}{r['substeps']:>10d}"
-              f"{r['overhead_ratio']:>13.2f}")
+        row("VSWrist/" + name, r, f"{r['vs_ant']:.2f}" if "vs_ant" in r else "-")
     print("env/physics: CPU time of env.step over the CPU time spent in the physics step of the same run "
-          "(targets: >= Ant-v5, >= 2000 steps/s, <= 1.25)")
+          "(targets: >= Ant-v5, >= 2000 steps/s, <= 1.25).\nother us: time per step outside the physics; "
+          "budget 1.25 = 0.25 x physics, budget Ant = Ant-v5's whole step - this task's physics: the most it "
+          "may be for each target")
+    if args.breakdown:
+        labels = list(results["envs"][0]["breakdown_us"])
+        print("\nwhere a step's time goes (us per env step, a second run with more timers):")
+        print(f"{'env':<18}" + "".join(f"{k:>15}" for k in labels))
+        for r in results["envs"]:
+            print(f"{'VSWrist/' + r['task']:<18}" + "".join(f"{r['breakdown_us'][k]:>15.1f}" for k in labels))
     if args.vec:
         try:
             os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))

@@ -28,6 +28,8 @@ ERR_ON = 0.03   # rad
 JAM = 8.0       # N
 IMPACT_AFTER = 0.5  # stiffness command of the Impact rule once the contact is over
 ORACLE_LOW = 0.0  # stiffness command of the oracle when the task needs no stiffness (the soft end rings)
+IMPACT_FREE = -0.5   # Impact oracle: stiffness command in free motion (stiffer than the soft end, which sags)
+IMPACT_MARGIN = 0.15  # Impact oracle: soft from this fraction of the path before the (hidden) wall
 SLEW = 4.0      # 1/s, largest rate of change of the stiffness command (full range in 0.5 s)
 HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last exceeded ERR_ON
 
@@ -71,7 +73,8 @@ def adaptive_policy(env):
 
 
 def oracle_policy(env):
-    """Soft/stiff from the hidden task state (event times, depth): what adapting is worth with perfect knowledge."""
+    """Soft/stiff from the hidden task state (event times, wall position, depth): what adapting is worth with
+    perfect knowledge."""
     u = env.unwrapped
     task = u.task
     state = {}
@@ -87,7 +90,10 @@ def oracle_policy(env):
         elif task == "insertion":
             s = 1.0 if u._depth > 0.0 else ORACLE_LOW
         elif task == "impact":
-            s = ORACLE_LOW if u._contact > 0.5 else 1.0
+            # knows where the wall stands: soft from shortly before it until the reference is back behind it,
+            # stiffer in free motion (and throughout when there is no wall)
+            f = (u._target[1] - u._fe0) / (u._fe1 - u._fe0)  # fraction of the path the reference is at
+            s = -1.0 if u._obstacle and f >= u._frac - IMPACT_MARGIN else IMPACT_FREE
         else:  # polish: the stiffness whose force matches the target, from the measured force (integral rule)
             return adaptive(obs)
         step = SLEW * u.ctrl_dt
@@ -103,8 +109,10 @@ def constant_policy(env, s: float):
     return lambda obs: u.reference_to_action(np.asarray(obs)[sl], s)
 
 
-def evaluate(env, policy_factory, seeds) -> tuple[float, float]:
-    returns, successes = [], []
+def evaluate(env, policy_factory, seeds, terms: dict | None = None) -> tuple[float, float]:
+    """Mean return and success rate over ``seeds``; if ``terms`` is a dict, it receives the mean episode sum of
+    every weighted reward term (``reward_<name>`` of ``info``)."""
+    returns, successes, sums = [], [], {}
     for seed in seeds:
         policy = policy_factory()
         obs, _ = env.reset(seed=int(seed))
@@ -113,8 +121,13 @@ def evaluate(env, policy_factory, seeds) -> tuple[float, float]:
             obs, r, term, trunc, info = env.step(policy(obs))
             total += r
             done = term or trunc
+            for k, v in info.items():
+                if k.startswith("reward_"):
+                    sums[k[7:]] = sums.get(k[7:], 0.0) + v
         returns.append(total)
         successes.append(info["is_success"])
+    if terms is not None:
+        terms.update({k: v / len(returns) for k, v in sums.items()})
     return float(np.mean(returns)), float(np.mean(successes))
 
 
@@ -125,11 +138,12 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
 
     env = gym.make(f"VSWrist/{task}-v0", config=config or {})
     seeds = range(seed0, seed0 + episodes)
-    out = {"task": task, "constant": {}}
+    out = {"task": task, "constant": {}, "terms": {}}
     for s in CONSTANT_COMMANDS:
-        out["constant"][s] = evaluate(env, lambda s=s: constant_policy(env, s), seeds)
-    out["adaptive"] = evaluate(env, lambda: adaptive_policy(env), seeds)
-    out["oracle"] = evaluate(env, lambda: oracle_policy(env), seeds)
+        out["terms"][f"s={s:+.1f}"] = t = {}
+        out["constant"][s] = evaluate(env, lambda s=s: constant_policy(env, s), seeds, t)
+    out["adaptive"] = evaluate(env, lambda: adaptive_policy(env), seeds, out["terms"].setdefault("rule", {}))
+    out["oracle"] = evaluate(env, lambda: oracle_policy(env), seeds, out["terms"].setdefault("oracle", {}))
     best = max(out["constant"], key=lambda s: out["constant"][s][0])
     out["best_constant"] = best
     out["gain"] = out["adaptive"][0] - out["constant"][best][0]
@@ -143,16 +157,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=10)
     ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
     ap.add_argument("--energy-weight", type=float, default=None, help="override reward.energy")
+    ap.add_argument("--terms", action="store_true",
+                    help="also print, per task, each agent's mean episode sum of every weighted reward term")
     args = ap.parse_args(argv)
     config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
     cols = "".join(f"{'s=' + format(s, '+.1f'):>16}" for s in CONSTANT_COMMANDS)
     print(f"mean return (success rate) over {args.episodes} episodes, reference agent")
     print(f"{'task':<11}{cols}{'rule':>16}{'oracle':>16}{'rule-best':>10}{'oracle-best':>12}")
+    results = []
     for task in args.tasks:
         r = probe(task, args.episodes, config=config)
         cells = "".join(f"{r['constant'][s][0]:>9.1f} ({r['constant'][s][1]:.1f})" for s in CONSTANT_COMMANDS)
         print(f"{task:<11}{cells}{r['adaptive'][0]:>9.1f} ({r['adaptive'][1]:.1f}){r['oracle'][0]:>9.1f} "
               f"({r['oracle'][1]:.1f}){r['gain']:>+10.1f}{r['oracle_gain']:>+12.1f}")
+        results.append(r)
+    if args.terms:
+        for r in results:
+            names = list(next(iter(r["terms"].values())))
+            print(f"\n{r['task']}: mean episode sum of each weighted reward term")
+            print(f"{'agent':<8}" + "".join(f"{n:>14}" for n in names))
+            for agent, t in r["terms"].items():
+                print(f"{agent:<8}" + "".join(f"{t[n]:>14.1f}" for n in names))
     return 0
 
 
