@@ -452,6 +452,15 @@ def test_adapting_stiffness_pays_on_polish():
     assert r["adaptive"][0] > max(v[0] for v in r["constant"].values())
 
 
+def test_adapting_stiffness_pays_on_impact():
+    """Stiff in free motion, soft from the first contact: beats every constant stiffness command (Impact's reward
+    trades tracking accuracy against contact force)."""
+    from vswrist_gym.envs.probe import probe
+
+    r = probe("Impact", episodes=8)
+    assert r["adaptive"][0] > max(v[0] for v in r["constant"].values())
+
+
 def test_probe_term_sums_add_up_to_the_return():
     """The probe's per-term breakdown (``--terms``) accounts for the whole mean return, term by term."""
     import gymnasium as gym

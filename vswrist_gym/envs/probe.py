@@ -11,7 +11,7 @@ The rules (observation only):
 * LoadHold, Drill: stiff while the posture error shows a load (above ``ERR_ON`` within the last ``HOLD_S``),
   soft otherwise;
 * Polish: integral control of the stiffness command on the normal force (stiffer below the band, softer above);
-* Impact: soft while an obstacle may still be ahead, stiffer once a contact has come and gone;
+* Impact: stiff in free motion, soft from the first sign of contact until ``IMPACT_SOFT_S`` after the last;
 * Insertion: soft while the pin is jammed (contact force above ``JAM``), stiff otherwise.
 """
 
@@ -26,10 +26,10 @@ from vswrist_gym import TASKS
 CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 ERR_ON = 0.03   # rad
 JAM = 8.0       # N
-IMPACT_AFTER = 0.5  # stiffness command of the Impact rule once the contact is over
 ORACLE_LOW = 0.0  # stiffness command of the oracle when the task needs no stiffness (the soft end rings)
-IMPACT_FREE = -0.5   # Impact oracle: stiffness command in free motion (stiffer than the soft end, which sags)
-IMPACT_MARGIN = 0.15  # Impact oracle: soft from this fraction of the path before the (hidden) wall
+IMPACT_FREE = 1.0    # Impact rule and oracle: stiffness command in free motion
+IMPACT_SOFT_S = 0.3  # s, the Impact rule stays soft this long after the last contact
+IMPACT_MARGIN = 0.1  # Impact oracle: soft from this fraction of the path before the (hidden) wall
 SLEW = 4.0      # 1/s, largest rate of change of the stiffness command (full range in 0.5 s)
 HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last exceeded ERR_ON
 
@@ -39,8 +39,9 @@ def adaptive_policy(env):
     u = env.unwrapped
     sl = u.obs_slices
     task = u.task
-    state = {"s": 0.0, "hold": 0}
+    state = {"s": 0.0, "hold": 0, "soft": 0}
     hold_steps = int(round(HOLD_S / u.ctrl_dt))
+    impact_soft = int(round(IMPACT_SOFT_S / u.ctrl_dt))
 
     def act(obs):
         obs = np.asarray(obs, dtype=float)
@@ -55,14 +56,10 @@ def adaptive_policy(env):
             state["s"] = float(np.clip(state["s"] + 0.02 * (goal - contact), -1.0, 1.0))
             s = state["s"]
         elif task == "impact":
-            # soft while an obstacle may still be ahead; once a contact has come and gone (the tool moves away),
-            # stiffer to track the heavy tool
-            if contact > 0.5:
-                state["touched"] = True
-                state["free"] = 0
-            elif state.get("touched"):
-                state["free"] = state.get("free", 0) + 1
-            s = IMPACT_AFTER if state.get("touched") and state.get("free", 0) * u.ctrl_dt > 0.2 else -1.0
+            # stiff in free motion (the heavy tool's sag costs tracking), soft as soon as and for as long as the
+            # touch sensor shows a contact, and for IMPACT_SOFT_S after it
+            state["soft"] = impact_soft if contact > 0.5 else max(state["soft"] - 1, 0)
+            s = -1.0 if state["soft"] > 0 else IMPACT_FREE
         else:  # insertion
             s = -1.0 if contact > JAM else 1.0
         # move the command at a limited rate: a jump in preload shakes the lightly damped wrist
