@@ -106,10 +106,10 @@ def constant_policy(env, s: float):
     return lambda obs: u.reference_to_action(np.asarray(obs)[sl], s)
 
 
-def evaluate(env, policy_factory, seeds, terms: dict | None = None) -> tuple[float, float]:
+def evaluate(env, policy_factory, seeds, terms: dict | None = None, returns: list | None = None) -> tuple[float, float]:
     """Mean return and success rate over ``seeds``; if ``terms`` is a dict, it receives the mean episode sum of
-    every weighted reward term (``reward_<name>`` of ``info``)."""
-    returns, successes, sums = [], [], {}
+    every weighted reward term (``reward_<name>`` of ``info``); if ``returns`` is a list, each episode's return."""
+    totals, successes, sums = [], [], {}
     for seed in seeds:
         policy = policy_factory()
         obs, _ = env.reset(seed=int(seed))
@@ -121,11 +121,13 @@ def evaluate(env, policy_factory, seeds, terms: dict | None = None) -> tuple[flo
             for k, v in info.items():
                 if k.startswith("reward_"):
                     sums[k[7:]] = sums.get(k[7:], 0.0) + v
-        returns.append(total)
+        totals.append(total)
         successes.append(info["is_success"])
     if terms is not None:
-        terms.update({k: v / len(returns) for k, v in sums.items()})
-    return float(np.mean(returns)), float(np.mean(successes))
+        terms.update({k: v / len(totals) for k, v in sums.items()})
+    if returns is not None:
+        returns.extend(totals)
+    return float(np.mean(totals)), float(np.mean(successes))
 
 
 def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None) -> dict:
@@ -135,16 +137,26 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
 
     env = gym.make(f"VSWrist/{task}-v0", config=config or {})
     seeds = range(seed0, seed0 + episodes)
-    out = {"task": task, "constant": {}, "terms": {}}
+    out = {"task": task, "constant": {}, "terms": {}, "returns": {}}
+
+    def run(label, factory):
+        return evaluate(env, factory, seeds, out["terms"].setdefault(label, {}), out["returns"].setdefault(label, []))
+
     for s in CONSTANT_COMMANDS:
-        out["terms"][f"s={s:+.1f}"] = t = {}
-        out["constant"][s] = evaluate(env, lambda s=s: constant_policy(env, s), seeds, t)
-    out["adaptive"] = evaluate(env, lambda: adaptive_policy(env), seeds, out["terms"].setdefault("rule", {}))
-    out["oracle"] = evaluate(env, lambda: oracle_policy(env), seeds, out["terms"].setdefault("oracle", {}))
+        out["constant"][s] = run(f"s={s:+.1f}", lambda s=s: constant_policy(env, s))
+    out["adaptive"] = run("rule", lambda: adaptive_policy(env))
+    out["oracle"] = run("oracle", lambda: oracle_policy(env))
     best = max(out["constant"], key=lambda s: out["constant"][s][0])
     out["best_constant"] = best
     out["gain"] = out["adaptive"][0] - out["constant"][best][0]
     out["oracle_gain"] = out["oracle"][0] - out["constant"][best][0]
+    # the same episodes for every agent: per-episode differences to the best constant remove the episode spread
+    ref = np.array(out["returns"][f"s={best:+.1f}"])
+    out["paired"] = {}
+    for label in ("rule", "oracle"):
+        d = np.array(out["returns"][label]) - ref
+        se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
+        out["paired"][label] = (float(d.mean()), se, float(np.mean(d > 0.0)))
     env.close()
     return out
 
@@ -152,6 +164,7 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=10)
+    ap.add_argument("--seed0", type=int, default=1000, help="first episode seed (episodes seed0, seed0 + 1, ...)")
     ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
     ap.add_argument("--energy-weight", type=float, default=None, help="override reward.energy")
     ap.add_argument("--terms", action="store_true",
@@ -159,15 +172,20 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
     cols = "".join(f"{'s=' + format(s, '+.1f'):>16}" for s in CONSTANT_COMMANDS)
-    print(f"mean return (success rate) over {args.episodes} episodes, reference agent")
+    print(f"mean return (success rate) over {args.episodes} episodes (seeds from {args.seed0}), reference agent")
     print(f"{'task':<11}{cols}{'rule':>16}{'oracle':>16}{'rule-best':>10}{'oracle-best':>12}")
     results = []
     for task in args.tasks:
-        r = probe(task, args.episodes, config=config)
+        r = probe(task, args.episodes, seed0=args.seed0, config=config)
         cells = "".join(f"{r['constant'][s][0]:>9.1f} ({r['constant'][s][1]:.1f})" for s in CONSTANT_COMMANDS)
         print(f"{task:<11}{cells}{r['adaptive'][0]:>9.1f} ({r['adaptive'][1]:.1f}){r['oracle'][0]:>9.1f} "
               f"({r['oracle'][1]:.1f}){r['gain']:>+10.1f}{r['oracle_gain']:>+12.1f}")
         results.append(r)
+    print("\npaired, episode by episode, against the best constant: mean difference (standard error), share of "
+          "episodes where it is higher")
+    for r in results:
+        cells = "".join(f"{k:>8} {m:+7.1f} ({se:.1f}) {pos:4.0%}" for k, (m, se, pos) in r["paired"].items())
+        print(f"{r['task']:<11} best s={r['best_constant']:+.1f}{cells}")
     if args.terms:
         for r in results:
             names = list(next(iter(r["terms"].values())))
