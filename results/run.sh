@@ -7,7 +7,7 @@
 # of training per task on 2 cores at 100,000), then PPO and the analytic baseline at five fixed stiffness commands
 # evaluated on the same EPISODES episodes per seed (default 20: 100 episodes per agent). Tables go to OUT/<Task>
 # (default results). The longer runs of results/README.md:
-#   STEPS=400000 EPISODES=50 OUT=results/long bash results/run.sh Drill Impact LoadHold
+#   STEPS=400000 EPISODES=50 OUT=results/long bash results/run.sh Drill LoadHold
 #   STEPS=400000 EPISODES=200 OUT=results/long200 bash results/run.sh Impact LoadHold
 set -euo pipefail
 tasks=("$@")
