@@ -34,7 +34,6 @@ import numpy as np
 from vswrist_gym import TASKS
 
 
-
 def _pin_one_core() -> int | None:
     try:
         cpu = sorted(os.sched_getaffinity(0))[-1]

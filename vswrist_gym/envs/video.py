@@ -23,7 +23,6 @@ import numpy as np
 from vswrist_gym import TASKS
 
 
-
 def reference_agent(env, stiffness: float):
     u = env.unwrapped
     sl = u.obs_slices["target"]
