@@ -648,12 +648,12 @@ class VSWristEnv(gym.Env):
                               "_obs_plan")}
         state["_sim_state"] = self.sim.get_state()
         state["_model_mutable"] = (self.model.body_mass.copy(), self.model.body_inertia.copy(),
-                                   self.model.geom_friction.copy())
+                                   self.model.geom_friction.copy(), self.model.dof_frictionloss.copy())
         return state
 
     def __setstate__(self, state):
         sim_state = state.pop("_sim_state")
-        mass, inertia, friction = state.pop("_model_mutable")
+        mass, inertia, friction, frictionloss = state.pop("_model_mutable")
         self.__dict__.update(state)
         self._WristSim = _import_sim()
         from ..sim import SimulationError
@@ -669,6 +669,7 @@ class VSWristEnv(gym.Env):
         self.model.body_mass[:] = mass
         self.model.body_inertia[:] = inertia
         self.model.geom_friction[:] = friction
+        self.model.dof_frictionloss[:] = frictionloss
         self.sim.set_state(sim_state)
         self._terms = self._obs_terms()
         self.obs_terms = [self._terms[n] for n in self.cfg["observation"]]

@@ -2,22 +2,33 @@
 
 The tool is L-shaped: an arm along the hand's X axis and a pin perpendicular to it, pointing down (-Z_b) at
 PS = 0, so radial/ulnar deviation drives the pin along its own axis (the pin is inclined so that it is tangent
-to its arc of motion half-way into the hole). The hole (square, radial clearance ``clearance``, chamfered) stands
-below the pin; its true position is off nominal by up to ``lateral_error`` along Y_b (fixed by FE) and its
-axis by up to ``angular_error`` about X_b (fixed by PS). The posture reference ramps from above the nominal
-hole to ``overdrive`` rad beyond full depth at the nominal FE and PS of the hole. Past ``fit_depth`` of the
-hole a fit (latch, press fit) resists with ``fit_force``. Adapting stiffness pays: a soft wrist lets the chamfer
-and walls steer the pin into the true hole without jamming; only a stiff one pushes it past the fit.
+to its arc of motion half-way into the hole). PS stays at 0: at any other PS the pin leaves the plane of its
+RUD path and stands tilted in the hole. The hole (square, radial clearance ``clearance``, chamfered) stands
+below the pin at a random nominal FE; its true position is off nominal by up to ``lateral_error`` along Y_b
+(which FE corrects) and its axis by up to ``angular_error`` about X_b (which PS corrects). The posture
+reference ramps from above the nominal hole to ``overdrive`` rad beyond full depth. At ``fit_depth`` of the
+hole the pin meets the fit (a latch or press fit): a plate across the hole on a slide joint whose Coulomb
+friction, ``fit_force``, resists being pushed down to the bottom (MuJoCo treats the friction implicitly: the
+fit holds still below that force, never pushes back, never rings).
 
-Depth: how far the pin tip is below the hole entrance along the hole axis while it is inside the hole
+Adapting stiffness pays: the soft wrist cannot push past the fit (its spring torque at the remaining RUD error
+gives less than ``fit_force``), and the stiff one pays preload energy all episode and presses the pin against
+the walls (wall force ~ stiffness x misalignment); soft while approaching and stiff only while pushing the fit
+down beats every constant stiffness (``python -m vswrist_gym.envs.probe --tasks Insertion``).
+
+Contact forces: ``contact_force`` (and the ``jamming`` term) is the normal force of the walls and chamfers on
+the tool; the fit plate has its own sensor, ``bottom_force``.
+
+Depth: how far the pin's end is below the hole entrance along the hole axis while it is inside the hole
 (laterally within the clearance). Success: the largest depth reaches ``success_depth`` x ``hole_depth``.
 """
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
-from ._contact import add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
+from ._contact import CONTACT_SOLREF, add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
 from .base import FORCE_CAP, VSWristEnv
 from .config import EnvConfigError
 from .drill import FINGER_END
@@ -30,7 +41,7 @@ class InsertionEnv(VSWristEnv):
     task = "insertion"
     task_id = "VSWrist/Insertion-v0"
     summary = "insert a pin into a chamfered hole with lateral and angular misalignment; depth against jamming"
-    success_text = "the pin tip reaches {success_depth:.0%} of the hole depth"
+    success_text = "the pin's end reaches {success_depth:.0%} of the hole depth"
     task_spec = {
         "tool_length": ("number", 0.0, 0.3),
         "pin_length": ("number", 0.005, 0.1),
@@ -39,7 +50,6 @@ class InsertionEnv(VSWristEnv):
         "hole_depth": ("number", 0.002, 0.1),
         "chamfer": ("number", 0.0, 0.05),
         "hole_fe": ("interval", -1.5, 1.5),
-        "hole_ps": ("interval", -np.pi, np.pi),
         "start_rud": ("number", -1.5, 1.5),
         "entry_rud": ("number", -1.5, 1.5),
         "overdrive": ("number", 0.0, 1.0),
@@ -98,7 +108,6 @@ class InsertionEnv(VSWristEnv):
         for sgn in (1.0, -1.0):
             boxes.append(((WALL, w + 2 * WALL, D / 2), (sgn * (w + WALL), 0.0, -D / 2), None))
             boxes.append(((w, WALL, D / 2), (0.0, sgn * (w + WALL), -D / 2), None))
-        boxes.append(((w + 2 * WALL, w + 2 * WALL, WALL), (0.0, 0.0, -D - WALL), None))
         if c > 0:
             half = c / np.sqrt(2.0)
             t = 0.006  # half thickness: thick enough that the pin cannot sink through on impact
@@ -109,25 +118,45 @@ class InsertionEnv(VSWristEnv):
                 n = np.array([0.0, -sgn, 1.0]) / np.sqrt(2.0)
                 mid = np.array([0.0, sgn * (w + c / 2), c / 2]) - t * n
                 boxes.append(((w + c, half, t), tuple(mid), rot_x(sgn * np.pi / 4)))
-        body = add_mocap_box_body(spec, "task_hole", boxes, rgba=(0.45, 0.5, 0.6, 1), friction=self.tp["friction"])
+        rgba = (0.45, 0.5, 0.6, 1)
+        body = add_mocap_box_body(spec, "task_hole", boxes, rgba=rgba, friction=self.tp["friction"])
         ext = w + 2 * WALL + 0.01
         self._add_touch_sensor(spec, body, "hole_touch", (ext, ext, D / 2 + c + 0.01), pos=(0, 0, -D / 2 + c / 2))
+        # the fit: a plate across the hole at fit_depth on a slide joint along the hole axis whose Coulomb friction
+        # (frictionloss, set per episode) is the fit force; its lower limit is the hole bottom. MuJoCo's solver
+        # treats the friction implicitly, so the fit resists without pushing back or ringing.
+        d_fit = self.tp["fit_depth"] * D
+        plate = add_mocap_box_body(spec, "task_hole_fit_mount", [], rgba=rgba)
+        fit = plate.add_body(name="task_hole_fit", pos=[0.0, 0.0, -d_fit])
+        fit.add_joint(name="task_hole_fit", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, 1], range=[d_fit - D, 0.0],
+                      limited=mujoco.mjtLimited.mjLIMITED_TRUE, armature=0.01, damping=1.0,
+                      solref_limit=list(CONTACT_SOLREF), solref_friction=[0.002, 1.0],
+                      solimp_friction=[0.9999, 0.9999, 0.001, 0.5, 2.0])
+        fit.add_geom(name="task_hole_fit_plate", type=mujoco.mjtGeom.mjGEOM_BOX, size=[w, w, WALL / 2],
+                     pos=[0.0, 0.0, -WALL / 2], mass=0.01, contype=0, conaffinity=2, condim=3,
+                     friction=[self.tp["friction"], 0.005, 0.0001], solref=list(CONTACT_SOLREF),
+                     rgba=[0.7, 0.55, 0.3, 1], group=1)
+        self._add_touch_sensor(spec, fit, "bottom_touch", (w + 1e-3, w + 1e-3, WALL))
 
     def _scene_ids(self) -> None:
         self._touch_adr = self._sensor_adr("hole_touch")
-        self._mocap = int(self.model.body("task_hole").mocapid[0])
+        self._bottom_adr = self._sensor_adr("bottom_touch")
+        self._mocaps = [int(self.model.body(b).mocapid[0]) for b in ("task_hole", "task_hole_fit_mount")]
+        j = self.model.joint("task_hole_fit")
+        self._fit_jnt, self._fit_dof, self._fit_qadr = int(j.id), int(j.dofadr[0]), int(j.qposadr[0])
         self._tip_local = self._pin_a + self.tp["pin_length"] * self._pin_v
 
     # ------------------------------------------------------------------ episode
     def _task_reset(self, rng):
         self._fe = float(rng.uniform(*self.tp["hole_fe"]))
-        self._ps = float(rng.uniform(*self.tp["hole_ps"]))
+        self._ps = 0.0  # the RUD path of the pin tip lies in the plane of the pin only at PS = 0
         self._lat = float(rng.uniform(-1, 1)) * self.tp["lateral_error"]
         self._ang = float(rng.uniform(-1, 1)) * self.tp["angular_error"]
         self._rud_end = self._rud_at_depth(1.0, self._pin_a, self._pin_v) + self.tp["overdrive"]
         self._depth = 0.0
         self._max_depth = 0.0
         self._fit = float(rng.uniform(*self.tp["fit_force"]))
+        self.model.dof_frictionloss[self._fit_dof] = self._fit  # before the settling steps of reset
         return np.array([self.tp["start_rud"], self._fe]), self._ps, float(rng.uniform(-1.0, 1.0))
 
     def _after_reset(self) -> None:
@@ -141,32 +170,43 @@ class InsertionEnv(VSWristEnv):
         R = rot_x(self._ang) @ R
         entrance = entrance + np.array([0.0, self._lat, 0.0])
         self._hole = (entrance, R)
-        self.data.mocap_pos[self._mocap] = entrance
-        self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
+        for m in self._mocaps:
+            self.data.mocap_pos[m] = entrance
+            self.data.mocap_quat[m] = quat_from_matrix(R)
 
     def _reference(self, t: float) -> np.ndarray:
         s = min(t / self.tp["approach_s"], 1.0)
         rud = self.tp["start_rud"] + s * (self._rud_end - self.tp["start_rud"])
         return np.array([rud, self._fe, self._ps])
 
-    def _before_physics(self, t: float) -> None:
-        """Past ``fit_depth`` the fit resists insertion with ``fit_force`` along the hole axis, applied to the hand
-        (a latch or press fit; the force acts at the hand centre, a simplification of where the pin feels it)."""
-        D = self.tp["hole_depth"]
-        engage = min(max((self._depth - self.tp["fit_depth"] * D) / (0.1 * D), 0.0), 1.0)  # ramps in over 0.1 D
-        self.sim.apply_wrench(engage * self._fit * self._hole[1][:, 2], np.zeros(3))
-
     def _contact_force(self) -> float:
+        """Normal force (N) of the walls and chamfers on the tool: the jamming force (the fit plate is apart)."""
         return float(self.data.sensordata[self._touch_adr])
 
+    def bottom_force(self) -> float:
+        """Normal force (N) of the fit plate (which ends at the hole bottom) on the pin."""
+        return float(self.data.sensordata[self._bottom_adr])
+
+    def fit_travel(self) -> float:
+        """How far the fit plate has been pushed, as a fraction of its travel (1 = the hole bottom)."""
+        lo = self.model.jnt_range[self._fit_jnt, 0]
+        return float(self.data.qpos[self._fit_qadr] / lo)
+
+    def _task_obs_terms(self):
+        from .spaces import ObsTerm
+        return [ObsTerm("bottom_force", 1, "N", "normal force of the hole bottom on the pin (no sensor noise)", self.bottom_force,
+                        0.0, 1e5)]
+
     def pin_depth(self) -> float:
-        """Depth (m) of the pin tip below the hole entrance along the hole axis, 0 unless inside the hole."""
+        """Depth (m) of the pin's end (its rounded tip) below the hole entrance along the hole axis, 0 unless the
+        pin is inside the hole; ``hole_depth`` when it rests on the bottom."""
         entrance, R = self._hole
-        tip = self._tool_tip_world()
+        tip = self._tool_tip_world()  # centre of the rounded end, pin_radius short of the end
         rel = R.T @ (tip - entrance)
-        w = self.tp["pin_radius"] + self.tp["clearance"]
+        r = self.tp["pin_radius"]
+        w = r + self.tp["clearance"]
         inside = abs(rel[0]) <= w + 1e-3 and abs(rel[1]) <= w + 1e-3
-        return float(min(max(-rel[2], 0.0), self.tp["hole_depth"])) if inside else 0.0
+        return float(min(max(r - rel[2], 0.0), self.tp["hole_depth"])) if inside else 0.0
 
     def _tool_tip_world(self) -> np.ndarray:
         b = self.sim.tool_id

@@ -12,7 +12,8 @@ The rules (observation only):
   soft otherwise;
 * Polish: integral control of the stiffness command on the normal force (stiffer below the band, softer above);
 * Impact: stiff in free motion, soft from the first sign of contact until ``IMPACT_SOFT_S`` after the last;
-* Insertion: soft while the pin is jammed (contact force above ``JAM``), stiff otherwise.
+* Insertion: soft, except stiff for ``PUSH_S`` from the first time the fit resists (bottom force above
+  ``PUSH_ON``): stiffness only while pushing the pin past the fit.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from vswrist_gym import TASKS
 
 CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 ERR_ON = 0.03   # rad
-JAM = 8.0       # N
+PUSH_ON = 2.0   # N, Insertion rule: the fit resists (bottom force) ...
+PUSH_S = 0.6    # s, ... and the rule is stiff this long from then
 ORACLE_LOW = 0.0  # stiffness command of the oracle when the task needs no stiffness (the soft end rings)
 IMPACT_FREE = 1.0    # Impact rule and oracle: stiffness command in free motion
 IMPACT_SOFT_S = 0.3  # s, the Impact rule stays soft this long after the last contact
@@ -39,8 +41,9 @@ def adaptive_policy(env):
     u = env.unwrapped
     sl = u.obs_slices
     task = u.task
-    state = {"s": 0.0, "hold": 0, "soft": 0}
+    state = {"s": 0.0, "hold": 0, "soft": 0, "push": None}
     hold_steps = int(round(HOLD_S / u.ctrl_dt))
+    push_steps = int(round(PUSH_S / u.ctrl_dt))
     impact_soft = int(round(IMPACT_SOFT_S / u.ctrl_dt))
 
     def act(obs):
@@ -60,8 +63,12 @@ def adaptive_policy(env):
             # touch sensor shows a contact, and for IMPACT_SOFT_S after it
             state["soft"] = impact_soft if contact > 0.5 else max(state["soft"] - 1, 0)
             s = -1.0 if state["soft"] > 0 else IMPACT_FREE
-        else:  # insertion
-            s = -1.0 if contact > JAM else 1.0
+        else:  # insertion: count down from the first push on the fit
+            if state["push"] is None and float(obs[sl["bottom_force"]][0]) > PUSH_ON:
+                state["push"] = push_steps
+            elif state["push"]:
+                state["push"] -= 1
+            s = 1.0 if state["push"] else -1.0
         # move the command at a limited rate: a jump in preload shakes the lightly damped wrist
         step = SLEW * u.ctrl_dt
         state["cmd"] = state.get("cmd", s) + float(np.clip(s - state.get("cmd", s), -step, step))
@@ -85,7 +92,10 @@ def oracle_policy(env):
         elif task == "drill":
             s = 1.0 if u._t_on - 0.1 <= t < u._t_off else ORACLE_LOW
         elif task == "insertion":
-            s = 1.0 if u._depth > 0.0 else ORACLE_LOW
+            # stiff from just before the pin reaches the fit (2 mm) until it has pushed the fit plate three quarters
+            # of its way down (past the success depth), soft otherwise
+            near = u._depth >= u.tp["fit_depth"] * u.tp["hole_depth"] - 0.002
+            s = 1.0 if near and u.fit_travel() < 0.75 else -1.0
         elif task == "impact":
             # knows where the wall stands: soft from shortly before it until the reference is back behind it,
             # stiffer in free motion (and throughout when there is no wall)
