@@ -238,7 +238,8 @@ class VSWristEnv(gym.Env):
             ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target, pl, ph),
             ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)",
                     self._obs_wrench, np.array([-1e4] * 3 + [-1e3] * 3), np.array([1e4] * 3 + [1e3] * 3)),
-            ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (with noise)",
+            ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (Insertion: the "
+                    "hole's walls and chamfers, not the fit plate) (with noise)",
                     self._obs_contact, 0.0, 1e5),
             ObsTerm("phase", 1, "-", "elapsed fraction of the episode",
                     lambda: self._step / self.episode_steps, 0.0, 1.0),

@@ -194,7 +194,7 @@ class InsertionEnv(VSWristEnv):
 
     def _task_obs_terms(self):
         from .spaces import ObsTerm
-        return [ObsTerm("bottom_force", 1, "N", "normal force of the hole bottom on the pin (no sensor noise)", self.bottom_force,
+        return [ObsTerm("bottom_force", 1, "N", "normal force of the fit plate (at the hole bottom once pushed down) on the pin (no sensor noise)", self.bottom_force,
                         0.0, 1e5)]
 
     def pin_depth(self) -> float:

@@ -39,8 +39,10 @@ def obs_table(envs) -> str:
     for e in envs:
         for t in e.obs_terms:
             used.setdefault(t.name, []).append(e.task_id.split("/")[1].replace("-v0", ""))
-    ref = envs[[len(e.obs_terms) for e in envs].index(max(len(e.obs_terms) for e in envs))]
-    terms = ref._terms
+    terms = {}  # every term any task offers: the common ones first, then each task's own
+    for e in envs:
+        for name, t in e._terms.items():
+            terms.setdefault(name, t)
     rows = ["| term | size | unit | meaning | default in |", "|---|---|---|---|---|"]
     for name, t in terms.items():
         where = ", ".join(used.get(name, [])) or "(available, not default)"
