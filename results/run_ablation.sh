@@ -10,7 +10,7 @@
 # Models and logs in runs/<out>/<Task>/ (git-ignored).
 # Usage: [ABLATION=posture_only|stiffness_only] [STEPS=N] [EPISODES=N] [OUT=DIR] bash results/run_ablation.sh [TASK ...]
 # The longer stiffness-only run of results/README.md:
-#   ABLATION=stiffness_only STEPS=400000 EPISODES=50 OUT=results/long_stiffness bash results/run_ablation.sh Polish
+#   ABLATION=stiffness_only STEPS=400000 EPISODES=50 OUT=results/long_stiffness bash results/run_ablation.sh Polish Insertion Impact
 set -euo pipefail
 tasks=("$@")
 [ ${#tasks[@]} -gt 0 ] || tasks=(Polish Drill Insertion Impact LoadHold)
