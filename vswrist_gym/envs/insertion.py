@@ -11,10 +11,11 @@ hole the pin meets the fit (a latch or press fit): a plate across the hole on a 
 friction, ``fit_force``, resists being pushed down to the bottom (MuJoCo treats the friction implicitly: the
 fit holds still below that force, never pushes back, never rings).
 
-Adapting stiffness pays: the soft wrist cannot push past the fit (its spring torque at the remaining RUD error
-gives less than ``fit_force``), and the stiff one pays preload energy all episode and presses the pin against
-the walls (wall force ~ stiffness x misalignment); soft while approaching and stiff only while pushing the fit
-down beats every constant stiffness (``python -m vswrist_gym.envs.probe --tasks Insertion``).
+Adapting stiffness pays: at the task's reference the soft wrist cannot push past the fit (its springs give
+less than ``fit_force`` at the remaining RUD error; a deeper posture reference can), and the stiff one pays
+preload energy all episode and presses the pin against the walls (wall force ~ stiffness x misalignment); soft
+while approaching and stiff only while pushing the fit down beats every constant stiffness
+(``python -m vswrist_gym.envs.probe --tasks Insertion``).
 
 Contact forces: ``contact_force`` (and the ``jamming`` term) is the normal force of the walls and chamfers on
 the tool; the fit plate has its own sensor, ``bottom_force``.
@@ -194,8 +195,8 @@ class InsertionEnv(VSWristEnv):
 
     def _task_obs_terms(self):
         from .spaces import ObsTerm
-        return [ObsTerm("bottom_force", 1, "N", "normal force of the fit plate (at the hole bottom once pushed down) on the pin (no sensor noise)", self.bottom_force,
-                        0.0, 1e5)]
+        return [ObsTerm("bottom_force", 1, "N", "normal force of the fit plate (at the hole bottom once pushed down) "
+                        "on the pin (no sensor noise)", self.bottom_force, 0.0, 1e5)]
 
     def pin_depth(self) -> float:
         """Depth (m) of the pin's end (its rounded tip) below the hole entrance along the hole axis, 0 unless the
