@@ -36,6 +36,15 @@ SLEW = 4.0      # 1/s, largest rate of change of the stiffness command (full ran
 HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last exceeded ERR_ON
 
 
+def _slew(state: dict, s: float, dt: float) -> float:
+    """Move ``state["cmd"]`` towards ``s`` at most ``SLEW`` per second (a jump in preload shakes the lightly damped
+    wrist) and return it; the first call starts at ``s``."""
+    cmd = state.get("cmd", s)
+    step = SLEW * dt
+    state["cmd"] = cmd + float(np.clip(s - cmd, -step, step))
+    return state["cmd"]
+
+
 def adaptive_policy(env):
     """A stateful function obs -> action implementing the task's rule (see the module docstring)."""
     u = env.unwrapped
@@ -69,10 +78,7 @@ def adaptive_policy(env):
             elif state["push"]:
                 state["push"] -= 1
             s = 1.0 if state["push"] else -1.0
-        # move the command at a limited rate: a jump in preload shakes the lightly damped wrist
-        step = SLEW * u.ctrl_dt
-        state["cmd"] = state.get("cmd", s) + float(np.clip(s - state.get("cmd", s), -step, step))
-        return u.reference_to_action(target, state["cmd"])
+        return u.reference_to_action(target, _slew(state, s, u.ctrl_dt))
     return act
 
 
@@ -103,9 +109,7 @@ def oracle_policy(env):
             s = -1.0 if u._obstacle and f >= u._frac - IMPACT_MARGIN else IMPACT_FREE
         else:  # polish: the stiffness whose force matches the target, from the measured force (integral rule)
             return adaptive(obs)
-        step = SLEW * u.ctrl_dt
-        state["cmd"] = state.get("cmd", s) + float(np.clip(s - state.get("cmd", s), -step, step))
-        return u.reference_to_action(u._target, state["cmd"])
+        return u.reference_to_action(u._target, _slew(state, s, u.ctrl_dt))
     adaptive = adaptive_policy(env)
     return act
 
