@@ -269,7 +269,8 @@ def identify(preset: str | WristParams = "paper", duration: float = 4.0, starts=
     factors = {k: float(max(y / PAPER[k], PAPER[k] / y)) for k, y in zip(KEYS, y_pick)}
     met = all(f <= TARGET_FACTOR for f in factors.values()) and min(ratios.values()) >= TARGET_RATIO
     return {
-        "preset": base.name, "duration_s": duration, "load": f"the implied load ({IMPLIED_LOAD_TORQUE} N m about the centre, gravity off)",
+        "preset": base.name, "duration_s": duration,
+        "load": f"the implied load ({IMPLIED_LOAD_TORQUE} N m about the centre, gravity off)",
         "paper": {k: PAPER[k] for k in KEYS}, "paper_precision": tol,
         "unknowns": [{"name": u.name, "lo": u.lo, "hi": u.hi, "base": getattr(getattr(base, u.section), u.key),
                       "why_bounds": u.why} for u in unknowns],
@@ -283,6 +284,8 @@ def identify(preset: str | WristParams = "paper", duration: float = 4.0, starts=
                        "kd": with_values(base, picked).motor.kd},
         "base_numbers": dict(zip(KEYS, y_base.tolist())),
         "elasticity": {k: dict(zip([u.name for u in unknowns], row.tolist())) for k, row in zip(KEYS, sens)},
+        "elasticity_at_base": {k: dict(zip([u.name for u in unknowns], row.tolist()))
+                               for k, row in zip(KEYS, elasticities(problem, problem.base_z()))},
         "sensitivity_si": {k: dict(zip([u.name for u in unknowns], row.tolist())) for k, row in zip(KEYS, absolute)},
         "hs_error_budget": hs_error_budget(with_values(base, picked), duration),
         "singular_values_errors": np.linalg.svd(sens[:2], compute_uv=False).tolist(),
@@ -308,7 +311,8 @@ def report(res: dict) -> str:
         bound = " (at bound)" if n in ident["at_bound"] else ""
         lines.append(f"| {n} | [{u['lo']:g}, {u['hi']:g}] | {u['base']:g} | {res['best']['values'][n]:.3g} | "
                      f"{ident['values'][n]:g}{bound} |")
-    lines += ["", "| number | paper | base | identified | identified / paper | log residual |", "|---|---|---|---|---|---|"]
+    lines += ["", "| number | paper | base | identified | identified / paper | log residual |",
+              "|---|---|---|---|---|---|"]
     for k in KEYS:
         y = ident["numbers"][k]
         lines.append(f"| {k} ({UNITS[k]}) | {res['paper'][k]:g} | {res['base_numbers'][k]:.3g} | {y:.3g} | "
@@ -323,6 +327,10 @@ def report(res: dict) -> str:
               "| number | " + " | ".join(n.split(".")[1] for n in names) + " |", "|---|" + "---|" * len(names)]
     for k in KEYS:
         lines.append(f"| {k} | " + " | ".join(f"{res['elasticity'][k][n]:+.3f}" for n in names) + " |")
+    lines += ["", "the same at the base preset's values:", "",
+              "| number | " + " | ".join(n.split(".")[1] for n in names) + " |", "|---|" + "---|" * len(names)]
+    for k in KEYS:
+        lines.append(f"| {k} | " + " | ".join(f"{res['elasticity_at_base'][k][n]:+.3f}" for n in names) + " |")
     lines += ["", "sensitivities in SI units, d(number) / d(parameter):", "",
               "| number | " + " | ".join(n.split(".")[1] for n in names) + " |", "|---|" + "---|" * len(names)]
     for k in KEYS:

@@ -8,6 +8,11 @@
   t = 0.5 s, in the MuJoCo simulator, under the paper's controller (``AnalyticController``).
 * ``DIR/results.json``: per preset the RMS posture error and RMS elastic torque of both trials beside the
   paper's numbers, the HS/LS ratios and the criteria, and every choice the paper leaves open (``choices``).
+  For the presets with the `paper` springs (``paper``, ``paper_identified``: the motor dynamics identified by
+  ``vswrist_gym.identify``) also the trials under the load the paper's numbers imply
+  (``<preset>_implied_load``) and with the forearm vertical (``forearm_vertical``), and
+  ``fig_rms_against_paper.png`` sets the four numbers of every run over the paper's.
+* ``--identify``: the identification itself (``vswrist_gym.identify``), into ``DIR/identify.json``.
 
 Choices the paper leaves open (also in ``results.json`` and docs/reproduce.md):
 
