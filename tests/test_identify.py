@@ -62,6 +62,8 @@ def test_kd_follows_kp_at_the_base_damping_ratio():
 def test_bad_target_and_bounds_are_named():
     with pytest.raises(ValueError, match="target"):
         I.Problem(load_params("paper"), I.UNKNOWNS, 1.5, target=[0.15, -0.007, 0.07, 1.72])
+    with pytest.raises(ValueError, match="paper_knm"):
+        I.identify("paper_knm", duration=1.5)
     bad = I.Unknown("motor", "kp", 10.0, 1.0, "")
     with pytest.raises(ValueError, match="motor.kp"):
         I.Problem(load_params("paper"), [bad], 1.5)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from dataclasses import dataclass
 from decimal import Decimal
@@ -240,6 +241,10 @@ def identify(preset: str | WristParams = "paper", duration: float = 4.0, starts=
              unknowns=UNKNOWNS, log=print) -> dict:
     """The whole identification; returns a JSON-ready dictionary (see the module docstring)."""
     base = load_params(preset)
+    if target is None and base.spring != load_params("paper").spring:
+        raise ValueError(f"preset '{base.name}': the implied load (and so the paper's numbers as targets) is "
+                         f"derived from the `paper` springs (K = {load_params('paper').spring.K} N m); this preset "
+                         f"has K = {base.spring.K} N m")
     problem = Problem(base, unknowns, duration, target)
     t0 = time.perf_counter()
     zb = problem.base_z()
@@ -352,7 +357,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=None, help="directory for identify.json (default: print only)")
     parser.add_argument("--quick", action="store_true", help="1.5 s trials instead of 4 s (a rough fit)")
     args = parser.parse_args(argv)
-    res = identify(args.preset, duration=1.5 if args.quick else 4.0)
+    try:
+        res = identify(args.preset, duration=1.5 if args.quick else 4.0)
+    except ValueError as exc:          # bad preset (ParamsError is a ValueError): one line, nothing written
+        print(f"vswrist identify: {exc}", file=sys.stderr)
+        return 2
     print(report(res))
     if args.out:
         out = Path(args.out)
