@@ -8,6 +8,11 @@
   t = 0.5 s, in the MuJoCo simulator, under the paper's controller (``AnalyticController``).
 * ``DIR/results.json``: per preset the RMS posture error and RMS elastic torque of both trials beside the
   paper's numbers, the HS/LS ratios and the criteria, and every choice the paper leaves open (``choices``).
+  For the presets with the `paper` springs (``paper``, ``paper_identified``: the motor dynamics identified by
+  ``vswrist_gym.identify``) also the trials under the load the paper's numbers imply
+  (``<preset>_implied_load``) and with the forearm vertical (``forearm_vertical``), and
+  ``fig_rms_against_paper.png`` sets the four numbers of every run over the paper's.
+* ``--identify``: the identification itself (``vswrist_gym.identify``), into ``DIR/identify.json``.
 
 Choices the paper leaves open (also in ``results.json`` and docs/reproduce.md):
 
@@ -36,10 +41,11 @@ from pathlib import Path
 import numpy as np
 
 from .control import AnalyticController
-from .params import DEVICE_PRESETS, PRESETS, load_params
+from .params import DEVICE_PRESETS, IDENTIFIED_PRESETS, PRESETS, load_params
 from .stiffness import coupler_stiffness
 
 PAPER = {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
+NUMBER_KEYS = tuple(PAPER)
 LEVELS_PER_LEG = (0.07, 0.3, 0.8, 1.72)        # N m, per-leg elastic torque of the four levels
 LS_PER_LEG, HS_PER_LEG = 0.07, 1.72            # N m
 LOAD_MASS, LOAD_TIME = 1.5, 0.5                # kg, s
@@ -60,34 +66,38 @@ def per_leg_to_lambda(per_leg: float) -> float:
     return per_leg * math.sqrt(3.0)
 
 
-def trial(params, lam: float, duration: float, gravity_compensation: bool = True, load=None) -> dict:
+def trial(params, lam: float, duration: float, gravity_compensation: bool = True, load=None,
+          control_dt: float = CONTROL_DT, reference_fn=None) -> dict:
     """One Fig. 3c trial in the simulator: track ``reference`` at internal torque lam, load from LOAD_TIME.
 
-    ``load``: the force (N, base frame) at the hand point; default LOAD_MASS x ``environment.gravity``."""
+    ``load``: the force (N, base frame) at the hand point; default LOAD_MASS x ``environment.gravity``.
+    ``control_dt`` (s) and ``reference_fn`` (t -> (RUD, FE, PS)) exist for the what-if diagnostics of
+    ``vswrist_gym.identify``; the reproduction uses CONTROL_DT and ``reference``."""
     from .sim import SimulationError, WristSim
 
+    reference_fn = reference if reference_fn is None else reference_fn
     sim = WristSim(params)
-    ctrl = AnalyticController(params, dt=CONTROL_DT, gravity_compensation=gravity_compensation)
-    ref0 = reference(0.0)
+    ctrl = AnalyticController(params, dt=control_dt, gravity_compensation=gravity_compensation)
+    ref0 = reference_fn(0.0)
     ctrl.reset(ref0, lam=lam)
     sim.reset(u=ref0[:2], ps=ref0[2], lam=ctrl.lam)
     load = LOAD_MASS * np.asarray(params.environment.gravity, dtype=float) if load is None else np.asarray(load)
-    n = int(round(duration / CONTROL_DT))
+    n = int(round(duration / control_dt))
     t_log, ref_log, post_log, tau_log = [], [], [], []
     status = "ok"
     try:
         for i in range(n):
-            t = i * CONTROL_DT
+            t = i * control_dt
             if abs(t - LOAD_TIME) < 1e-9:
                 sim.apply_wrench(load, (0.0, 0.0, 0.0))
-            sim.set_motor_references(ctrl.step(reference(t), lam=lam))
-            sim.step(CONTROL_DT)
-            t1 = (i + 1) * CONTROL_DT
+            sim.set_motor_references(ctrl.step(reference_fn(t), lam=lam))
+            sim.step(control_dt)
+            t1 = (i + 1) * control_dt
             post = sim.posture()
             if not np.all(np.isfinite(post)):
                 raise SimulationError(f"non-finite posture at t = {t1:.3f} s")
             t_log.append(t1)
-            ref_log.append(reference(t1))
+            ref_log.append(reference_fn(t1))
             post_log.append(post)
             tau_log.append(sim.spring_torques())
     except SimulationError as exc:
@@ -123,21 +133,47 @@ def _preset_results(params, duration: float, gravity_compensation: bool) -> tupl
     return out, {"ls": ls, "hs": hs}
 
 
-def implied_load_scenario(params, duration: float) -> tuple[dict, dict]:
+def implied_load_setup(params) -> tuple:
+    """(params with gravity off, force at the hand point) of the implied-load diagnostic: a force along -Z_b
+    whose torque about the centre at the central posture is IMPLIED_LOAD_TORQUE."""
+    p0 = params.replace(environment={"gravity": [0.0, 0.0, 0.0]})
+    lever = params.inertia.hand_offset + params.geometry.d * math.sin(params.geometry.alpha / 2.0)
+    return p0, np.array([0.0, 0.0, -IMPLIED_LOAD_TORQUE / lever])
+
+
+def implied_load_scenario(params, duration: float, **trial_kwargs) -> tuple[dict, dict]:
     """Diagnostic: the paper's numbers imply a load torque of only ~0.015 N m in both trials (stiffness x RMS
     error). Gravity off, a force along -Z_b at the hand point whose torque at the central posture is that
     (force = 0.015 N m / lever): does the controller then show the paper's HS/LS ratios?"""
-    p0 = params.replace(environment={"gravity": [0.0, 0.0, 0.0]})
-    lever = params.inertia.hand_offset + params.geometry.d * math.sin(params.geometry.alpha / 2.0)
-    force = np.array([0.0, 0.0, -IMPLIED_LOAD_TORQUE / lever])
-    ls = trial(p0, per_leg_to_lambda(LS_PER_LEG), duration, False, load=force)
-    hs = trial(p0, per_leg_to_lambda(HS_PER_LEG), duration, False, load=force)
+    p0, force = implied_load_setup(params)
+    ls = trial(p0, per_leg_to_lambda(LS_PER_LEG), duration, False, load=force, **trial_kwargs)
+    hs = trial(p0, per_leg_to_lambda(HS_PER_LEG), duration, False, load=force, **trial_kwargs)
     return {"description": f"gravity off; {np.linalg.norm(force):.3g} N along -Z_b at the hand point from "
                            f"t = {LOAD_TIME} s ({IMPLIED_LOAD_TORQUE} N m about the centre)",
             "rms_error_ls": ls["rms_error"], "rms_error_hs": hs["rms_error"],
             "rms_torque_ls": ls["rms_torque"], "rms_torque_hs": hs["rms_torque"],
             "error_ratio_ls_over_hs": ls["rms_error"] / hs["rms_error"],
             "torque_ratio_hs_over_ls": hs["rms_torque"] / ls["rms_torque"]}, {"ls": ls, "hs": hs}
+
+
+def forearm_vertical_scenario(params, duration: float, gravity_compensation: bool = True) -> dict:
+    """The other orientation the paper may have meant: forearm vertical, so gravity and the 1.5 kg load act
+    along the hand axis (X_b) at the central posture. ``hand_down``: gravity along +X_b (the hand hangs below
+    the wrist, the load pulls the posture back to the centre); ``hand_up``: along -X_b (an inverted pendulum)."""
+    out = {}
+    for sense, sign in (("hand_down", 1.0), ("hand_up", -1.0)):
+        g = float(np.linalg.norm(params.environment.gravity))
+        p = params.replace(environment={"gravity": [sign * g, 0.0, 0.0]})
+        ls = trial(p, per_leg_to_lambda(LS_PER_LEG), duration, gravity_compensation)
+        hs = trial(p, per_leg_to_lambda(HS_PER_LEG), duration, gravity_compensation)
+        out[sense] = {"gravity": [sign * g, 0.0, 0.0],
+                      "rms_error_ls": ls["rms_error"], "rms_error_hs": hs["rms_error"],
+                      "rms_torque_ls": ls["rms_torque"], "rms_torque_hs": hs["rms_torque"],
+                      "error_ratio_ls_over_hs": ls["rms_error"] / hs["rms_error"],
+                      "torque_ratio_hs_over_ls": hs["rms_torque"] / ls["rms_torque"],
+                      "max_error_ls": ls["max_error"], "max_error_hs": hs["max_error"],
+                      "status_ls": ls["status"], "status_hs": hs["status"]}
+    return out
 
 
 def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
@@ -223,7 +259,8 @@ def figure_3c(params, runs: dict, res: dict, out_dir: Path, tag: str = "load", n
     return path
 
 
-def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS, gravity_compensation: bool = True) -> dict:
+def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS + IDENTIFIED_PRESETS,
+        gravity_compensation: bool = True) -> dict:
     """Regenerate figures and ``results.json`` into ``out``; returns the results."""
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -250,20 +287,28 @@ def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS, gravity_co
         "machine": f"{platform.node()} ({platform.machine()}), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
     }
     figures = []
+    implied_presets = []
     for name in presets:
         params = load_params(name)
         res, runs = _preset_results(params, duration, gravity_compensation)
         results[name] = res
-        figures += [str(p) for p in figure_3ab(params, out_dir)]
+        if name not in IDENTIFIED_PRESETS:      # same springs and kinematics as `paper`: the same 3a/3b
+            figures += [str(p) for p in figure_3ab(params, out_dir)]
         figures.append(str(figure_3c(params, runs, res, out_dir)))
-    default = results.get("paper")
-    if default is not None:
-        implied, runs = implied_load_scenario(load_params("paper"), duration)
-        results["paper_implied_load"] = implied
-        figures.append(str(figure_3c(load_params("paper"), runs, implied, out_dir, "implied_load",
-                                     f"{IMPLIED_LOAD_TORQUE} N m load, gravity off")))
+        if params.spring == load_params("paper").spring:  # the implied load is derived from these springs
+            implied_presets.append(name)
+    for name in implied_presets:
+        params = load_params(name)
+        implied, runs = implied_load_scenario(params, duration)
         implied["passed"] = bool(implied["error_ratio_ls_over_hs"] >= CRITERION_RATIO
                                  and implied["torque_ratio_hs_over_ls"] >= CRITERION_RATIO)
+        results[f"{name}_implied_load"] = implied
+        figures.append(str(figure_3c(params, runs, implied, out_dir, "implied_load",
+                                     f"{IMPLIED_LOAD_TORQUE} N m load, gravity off")))
+        results.setdefault("forearm_vertical", {})[name] = forearm_vertical_scenario(params, duration,
+                                                                                     gravity_compensation)
+    default = results.get("paper")
+    if default is not None:
         results["criteria"] = {
             "error_ratio_ls_over_hs": default["error_ratio_ls_over_hs"],
             "torque_ratio_hs_over_ls": default["torque_ratio_hs_over_ls"],
@@ -271,20 +316,56 @@ def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS, gravity_co
             "passed": bool(default["error_ratio_ls_over_hs"] >= CRITERION_RATIO
                            and default["torque_ratio_hs_over_ls"] >= CRITERION_RATIO),
         }
+    if implied_presets:
+        figures.append(str(figure_comparison(results, presets, implied_presets, out_dir)))
     results["figures"] = [Path(f).name for f in figures]
     (out_dir / "results.json").write_text(json.dumps(results, indent=2))
     return results
 
 
-def _table(results: dict, presets) -> str:
-    rows = ["| quantity | paper (reported) | " + " | ".join(f"ours: {p}" for p in presets) + " |", "|---|---|" + "---|" * len(presets)]
-    for key, unit in (("rms_error_ls", "rad"), ("rms_error_hs", "rad"), ("rms_torque_ls", "N m"),
-                      ("rms_torque_hs", "N m")):
-        ours = " | ".join(f"{results[p][key]:.3g}" for p in presets)
+def figure_comparison(results: dict, presets, implied_presets, out_dir: Path) -> Path:
+    """The four RMS numbers over the paper's, per preset, for both load readings (log scale, 1.5x band)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(8.4, 3.4), sharey=True)
+    x = np.arange(len(NUMBER_KEYS))
+    for ax, (title, keys) in zip(axes, ((f"{LOAD_MASS} kg load (the paper's text)", list(presets)),
+                                        (f"{IMPLIED_LOAD_TORQUE} N m load (the paper's numbers imply)",
+                                         [f"{n}_implied_load" for n in implied_presets]))):
+        width = 0.8 / max(len(keys), 1)
+        for i, key in enumerate(keys):
+            name = key.replace("_implied_load", "")
+            ratio = [results[key][k] / PAPER[k] for k in NUMBER_KEYS]
+            ax.bar(x + (i - (len(keys) - 1) / 2) * width, ratio, width=width, label=name,
+                   color=plt.cm.tab10(list(presets).index(name)))
+        ax.axhspan(1 / 1.5, 1.5, color="0.85", zorder=0, label="within 1.5x")
+        ax.axhline(1.0, color="k", lw=0.6)
+        ax.set_yscale("log")
+        ax.set_xticks(x, ["error LS", "error HS", "torque LS", "torque HS"], fontsize=7.5)
+        ax.set_title(title, fontsize=8.5)
+        ax.legend(fontsize=6.5)
+    axes[0].set_ylabel("ours / paper's RMS number")
+    fig.tight_layout()
+    path = out_dir / "fig_rms_against_paper.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _table(results: dict, columns, headers=None) -> str:
+    """The paper's four numbers and ratios beside ours, one column per ``results`` entry."""
+    headers = list(columns) if headers is None else headers
+    rows = ["| quantity | paper (reported) | " + " | ".join(f"ours: {h}" for h in headers) + " |",
+            "|---|---|" + "---|" * len(columns)]
+    for key in NUMBER_KEYS:
+        unit = "rad" if "error" in key else "N m"
+        ours = " | ".join(f"{results[p][key]:.3g}" for p in columns)
         rows.append(f"| {key} ({unit}) | {PAPER[key]:g} | {ours} |")
     for key, paper in (("error_ratio_ls_over_hs", PAPER["rms_error_ls"] / PAPER["rms_error_hs"]),
                        ("torque_ratio_hs_over_ls", PAPER["rms_torque_hs"] / PAPER["rms_torque_ls"])):
-        rows.append(f"| {key} | {paper:.3g} | " + " | ".join(f"{results[p][key]:.3g}" for p in presets) + " |")
+        rows.append(f"| {key} | {paper:.3g} | " + " | ".join(f"{results[p][key]:.3g}" for p in columns) + " |")
     return "\n".join(rows)
 
 
@@ -292,23 +373,37 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vswrist reproduce", description=__doc__.split("\n")[0])
     parser.add_argument("--out", required=True, help="output directory for the figures and results.json")
     parser.add_argument("--quick", action="store_true", help="reduced run (1.5 s trials) for the test suite")
-    parser.add_argument("--presets", nargs="+", default=list(DEVICE_PRESETS), choices=list(PRESETS))
+    parser.add_argument("--presets", nargs="+", default=list(DEVICE_PRESETS + IDENTIFIED_PRESETS),
+                        choices=list(PRESETS))
     parser.add_argument("--no-gravity-compensation", action="store_true",
                         help="run the paper's controller without the hand-weight feed-forward")
+    parser.add_argument("--identify", action="store_true",
+                        help="instead: identify the unknown motor dynamics from the paper's four numbers "
+                             "(vswrist_gym.identify; minutes) and write identify.json")
     args = parser.parse_args(argv)
+    if args.identify:
+        from . import identify
+        return identify.main(["--out", args.out] + (["--quick"] if args.quick else []))
     results = run(args.out, quick=args.quick, presets=args.presets,
                   gravity_compensation=not args.no_gravity_compensation)
+    print(f"{LOAD_MASS} kg load at the hand (the paper's text):")
     print(_table(results, args.presets))
     if "criteria" in results:
         c = results["criteria"]
         print(f"criteria (default preset, ratios >= {c['required_min']:g}): "
               f"error ratio {c['error_ratio_ls_over_hs']:.3g}, "
               f"torque ratio {c['torque_ratio_hs_over_ls']:.3g} -> {'PASS' if c['passed'] else 'FAIL'}")
-    if "paper_implied_load" in results:
-        d = results["paper_implied_load"]
-        print(f"diagnostic, the load the paper's numbers imply ({d['description']}): RMS error LS "
-              f"{d['rms_error_ls']:.3g} / HS {d['rms_error_hs']:.3g} rad (ratio {d['error_ratio_ls_over_hs']:.3g}), "
-              f"RMS torque LS {d['rms_torque_ls']:.3g} / HS {d['rms_torque_hs']:.3g} N m "
-              f"(ratio {d['torque_ratio_hs_over_ls']:.3g}) -> {'PASS' if d['passed'] else 'FAIL'}")
+    implied = [k for k in results if k.endswith("_implied_load")]
+    if implied:
+        print(f"\nthe load the paper's numbers imply ({results[implied[0]]['description']}):")
+        print(_table(results, implied, [k.replace("_implied_load", "") for k in implied]))
+        print("ratios >= " + f"{CRITERION_RATIO:g}: " + ", ".join(
+            f"{k.replace('_implied_load', '')} {'PASS' if results[k]['passed'] else 'FAIL'}" for k in implied))
+    for name, senses in results.get("forearm_vertical", {}).items():
+        for sense, d in senses.items():
+            print(f"forearm vertical ({sense}), {LOAD_MASS} kg along the hand axis, {name}: RMS error LS "
+                  f"{d['rms_error_ls']:.3g} / HS {d['rms_error_hs']:.3g} rad, RMS torque LS {d['rms_torque_ls']:.3g} / "
+                  f"HS {d['rms_torque_hs']:.3g} N m (ratios {d['error_ratio_ls_over_hs']:.3g} / "
+                  f"{d['torque_ratio_hs_over_ls']:.3g})")
     print(f"figures and results.json in {args.out}")
     return 0
