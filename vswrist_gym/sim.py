@@ -13,6 +13,7 @@ Quick reference (angles rad, torques N m, forces N, base frame = MuJoCo world fr
     sim.motor_angles(), sim.motor_velocities(), sim.motor_torques()   # (4,) each
     sim.tool_wrench() -> (6,)                    # force, torque the hand exerts on the tool, base frame
     sim.loop_closure_error() -> float            # largest weld violation (m or rad)
+    sim.loop_closure_peak() -> float             # the same, worst over the last step's substeps
     s = sim.get_state(); sim.set_state(s)        # exact restart
 
 The springs and the motors' setpoint dynamics act inside every physics substep (``model.native`` callbacks),
@@ -31,7 +32,8 @@ import numpy as np
 
 from .kinematics import LEG_NAMES, RangeOfMotionError, WristKinematics
 from .model import native
-from .model.builder import SceneFn, build_model
+from .model.builder import CLOSURE_TAG, SceneFn, build_model
+from .model.native import weld_violation
 from .params import WristParams, load_params
 from .stiffness import PostureTerms, lambda_range, motor_references
 
@@ -101,6 +103,10 @@ class WristSim:
         self._tool_R = d.site_xmat[self._tool_site].reshape(3, 3)
         self._tool_f = d.sensordata[self._force_adr:self._force_adr + 3]
         self._tool_t = d.sensordata[self._torque_adr:self._torque_adr + 3]
+        # the native spring callback keeps the worst weld violation it sees in userdata[slot] (builder's
+        # ``vswrist_closure`` field): one check per substep inside mj_step, with no Python in the loop
+        slot = int(m.numeric(CLOSURE_TAG).data[0])
+        self._closure_peak = d.userdata[slot:slot + 1]
         self._stale = True   # nothing derived from the positions is current (after step)
         self._light = False  # only poses and velocities are current (after sync_kinematics)
         self.reset()
@@ -176,12 +182,15 @@ class WristSim:
             raise ValueError(f"force and torque must be finite 3-vectors (N, N m), got {force!r}, {torque!r}")
         self.data.xfrc_applied[self.hand_id] = w
 
-    def step(self, duration_s: float) -> None:
-        """Advance the physics by ``duration_s`` (a whole number of substeps of ``self.timestep``)."""
+    def step(self, duration_s: float, restart_peak: bool = True) -> None:
+        """Advance the physics by ``duration_s`` (a whole number of substeps of ``self.timestep``).
+        ``restart_peak=False`` extends the previous step's ``loop_closure_peak`` (one period in two calls)."""
         n = int(round(duration_s / self.timestep))
         if n < 1 or abs(n * self.timestep - duration_s) > 1e-9 * max(1.0, duration_s):
             raise ValueError(f"duration_s = {duration_s!r} s must be a positive multiple of the timestep "
                              f"{self.timestep} s")
+        if restart_peak:
+            self._closure_peak[0] = 0.0
         mujoco.mj_step(self.model, self.data, n)
         self._stale = True
         w = self._warn_number
@@ -300,18 +309,23 @@ class WristSim:
 
     def loop_closure_error(self) -> float:
         """Largest violation of the loop-closure welds: position (m) or rotation angle (rad), whichever is larger."""
-        if self._stale:
+        if self._stale:  # poses: sync_kinematics is enough
             self._forward()
-        d = self.data
-        c = self.coupler_id
-        worst = 0.0
-        qc = d.xquat[c]
-        for e in self._end_ids:
-            worst = max(worst, float(np.linalg.norm(d.xpos[e] - d.xpos[c])))
-            qe = d.xquat[e]
-            dot = abs(float(qc @ qe))
-            worst = max(worst, 2.0 * math.acos(min(1.0, dot)))
-        return worst
+        return weld_violation(self.data.xpos, self.data.xquat, self.coupler_id, self._end_ids)
+
+    def loop_closure_peak(self) -> float:
+        """``loop_closure_error`` at its worst over the last ``step``: at the state it started from and after
+        each of its substeps (the last one included), m or rad. The peaks of reference jumps last a few
+        substeps, so the state at the end of a control period alone misses them. Needs the native callbacks
+        (``WristSim.backend``), which evaluate it once per substep."""
+        if self._stale:
+            self._forward()  # the callbacks run in mj_forward too, so the final state is now counted
+            return float(self._closure_peak[0])
+        peak = float(self._closure_peak[0])
+        if self._light:  # poses are current but no callback saw the final state
+            end = weld_violation(self.data.xpos, self.data.xquat, self.coupler_id, self._end_ids)
+            return end if end > peak else peak
+        return peak
 
     def warnings(self) -> dict[str, int]:
         """MuJoCo warnings raised so far (name -> count); empty when all is well."""

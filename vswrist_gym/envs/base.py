@@ -3,19 +3,24 @@
 Time is in seconds: the control period ``ctrl_dt`` (default 0.02 s, 50 Hz) must be a whole number of physics
 steps (``physics_dt``, default the simulator's), checked at construction. One ``step``:
 
-1. the action is checked (shape, NaN, inf -> ``ValueError``) and clipped to [-1, 1];
+1. the action is checked (exactly the action space's shape, real numbers, no NaN or inf; else ``ValueError``)
+   and clipped to [-1, 1]; a step after the episode ended (or before the first ``reset``) raises
+   ``gymnasium.error.ResetNeeded``;
 2. the action mode turns it into motor references (via the analytic controller, except mode ``motor``);
 3. the task applies its external loads (wrenches on the hand, obstacles are in the model);
 4. the simulator advances ``ctrl_dt`` (springs and motors every substep); with ``latency`` randomisation the
    previous references are held for the first part of the period;
-5. observation, unweighted reward terms, weights from config, metrics.
+5. observation, unweighted reward terms, weights from config, metrics, and the physics' validity: the worst
+   loop-closure opening over the period's substeps (``info["loop_closure"]``), flagged past ``closure_warn``.
 
 Contract (used by the agents): ``obs_slices`` (term -> slice of the flat observation, ``target`` = posture
 reference (RUD, FE, PS), rad), ``reference_to_action(posture_ref, stiffness)`` (the inverse of the
 ``posture_stiffness`` mapping), ``info`` with every weighted term ``reward_<name>`` (summing exactly to the
 reward) and the metrics ``posture_error`` (rad), ``contact_force`` (N), ``peak_contact_force`` (N),
-``rms_contact_force`` (N), ``elastic_energy`` (J), ``lam`` (N m), ``is_success`` (bool, decided at the last step
-of the episode; False before).
+``rms_contact_force`` (N), ``elastic_energy`` (J), ``lam`` (N m), ``loop_closure`` (m or rad, the largest weld
+violation at the start of the period and after each of its substeps, ``WristSim.loop_closure_peak``; inf on a
+step where the physics diverged), ``closure_exceeded`` (``loop_closure > closure_warn``), ``is_success`` (bool,
+decided at the last step of the episode; False before, and False when ``closure_truncate`` cut the episode).
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from ..params import load_params
 from .config import SCALE_TERMS, EnvConfigError, load_env_config, validate_task
@@ -88,6 +94,9 @@ class VSWristEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
                              f"got {render_mode!r}")
+        if config is not None and not isinstance(config, Mapping):
+            raise EnvConfigError(f"'config' must be a mapping of settings (e.g. {{'reward': {{'energy': 0.5}}}}), "
+                                 f"got {type(config).__name__} {config!r}")
         user = dict(config or {})
         user.update(overrides)
         self._user_config = user
@@ -99,6 +108,7 @@ class VSWristEnv(gym.Env):
         self._validate_task()
         self.params = self.nominal_params
         self.ctrl_dt = cfg["ctrl_dt"]
+        self._closure_warn, self._closure_truncate = cfg["closure_warn"], cfg["closure_truncate"]
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.ctrl_dt)))
 
         self._WristSim = _import_sim()
@@ -156,6 +166,7 @@ class VSWristEnv(gym.Env):
             raise EnvConfigError(f"'render.camera' = {cfg['render']['camera']!r} is not a camera of the model; "
                                  f"choose one of {cams}")
         self._reset_state()
+        self._needs_reset = True  # step() before the first reset() is refused, as after an episode's end
 
     def _validate_task(self) -> None:
         """Cross-checks of the task section beyond per-field ranges (override in tasks)."""
@@ -364,6 +375,7 @@ class VSWristEnv(gym.Env):
         self._defl_list = [0.0, 0.0, 0.0]
         self._energy = 0.0
         self._contact = 0.0
+        self._closure = 0.0
         self._peak_contact = 0.0
         self._sum_contact_sq = 0.0
         self._noise_std = None
@@ -427,12 +439,18 @@ class VSWristEnv(gym.Env):
         self._after_reset()
         self._target = self._reference(0.0)
         self._measure()
+        self._closure = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
+            self.sim.loop_closure_error()
+        self._needs_reset = False
         self._theta_prev = None
         if self.cfg["action_mode"] == "residual":
             self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
         return self._observation(), self._info({}, final=False)
 
     def step(self, action):
+        if self._needs_reset:
+            raise ResetNeeded("step() called after the episode ended (terminated or truncated) or before the "
+                              "first reset(); call reset() to start an episode")
         a = check_action(action, self.action_space.shape)
         a = np.maximum(a, -1.0)  # = np.clip(a, -1, 1) (a is finite), a new array: the caller's is untouched
         np.minimum(a, 1.0, out=a)
@@ -443,7 +461,7 @@ class VSWristEnv(gym.Env):
             if self._latency > 0.0 and self._theta_prev is not None:
                 self.sim.step(self._latency)
                 self.sim.set_motor_references(theta)
-                self.sim.step(self.ctrl_dt - self._latency)
+                self.sim.step(self.ctrl_dt - self._latency, restart_peak=False)
             else:
                 self.sim.set_motor_references(theta)
                 self.sim.step(self.ctrl_dt)
@@ -455,6 +473,9 @@ class VSWristEnv(gym.Env):
         self._measure()
         if failure is None and not all(x - x == 0.0 for x in self._posture_list + self._defl_list):  # finite?
             failure = f"non-finite state at t = {self._t:.3f} s"
+        # the physics' validity: measured before a failure resets the simulator (MuJoCo has then already reset
+        # its state, so the opening is unknown: inf)
+        self._closure = self.sim.loop_closure_peak() if failure is None else math.inf
         if failure is not None:
             # the physics diverged (MuJoCo resets its state when it does): end the episode with the
             # termination penalty, from a clean, finite state so that the last observation is valid
@@ -484,9 +505,13 @@ class VSWristEnv(gym.Env):
             reward += v
         self._prev_action = a.astype(np.float32)
         terminated = failure is not None
-        truncated = not terminated and self._step >= self.episode_steps
+        time_up = not terminated and self._step >= self.episode_steps
+        # closure_truncate: the welds opened past closure_warn, so the physics from here on is not trustworthy
+        cut = not terminated and self._closure_truncate and self._closure > self._closure_warn
+        truncated = time_up or cut
+        self._needs_reset = terminated or truncated
         obs = self._observation()
-        info = self._info(weighted, final=truncated, err=err)
+        info = self._info(weighted, final=time_up and not cut, err=err)
         info["posture_error_vec"] = err
         if terminated:
             info["simulation_error"] = failure
@@ -518,6 +543,8 @@ class VSWristEnv(gym.Env):
             rms_contact_force=float(math.sqrt(self._sum_contact_sq / n)),
             elastic_energy=self._energy,
             lam=float(self.ctrl.lam),
+            loop_closure=self._closure,
+            closure_exceeded=self._closure > self._closure_warn,
             time=self._t,
             is_success=bool(self._success()) if final else False,
         )

@@ -90,23 +90,42 @@ def choice(where: str, value: Any, allowed: tuple[str, ...]) -> str:
 
 
 def _keys(where: str, given: Mapping[str, Any], allowed) -> None:
-    unknown = sorted(set(given) - set(allowed))
+    unknown = sorted(set(given) - set(allowed), key=str)
     if unknown:
         raise EnvConfigError(f"unknown setting(s) {', '.join(f'{where}{k}' for k in unknown)}; "
                              f"allowed: {sorted(allowed)}")
+
+
+def sections(where: str, cfg: Mapping[str, Any], reference: Mapping[str, Any]) -> None:
+    """Every setting that is a mapping in ``reference`` (a section, at any depth) must be a mapping in
+    ``cfg`` too; an override that replaces a section by a number, a string or a list fails here, naming the
+    dotted field, instead of deep inside the validation."""
+    for key, ref in reference.items():
+        if not isinstance(ref, Mapping) or key not in cfg:
+            continue
+        name, value = f"{where}{key}", cfg[key]
+        if not isinstance(value, Mapping):
+            keys = list(ref)
+            shown = ", ".join(map(str, keys[:4])) + (", ..." if len(keys) > 4 else "")
+            raise EnvConfigError(f"'{name}' must be a mapping of settings ({shown}), "
+                                 f"got {type(value).__name__} {value!r}")
+        sections(f"{name}.", value, ref)
 
 
 def load_env_config(task: str, overrides: Mapping[str, Any] | None = None) -> dict:
     """Defaults, then ``<task>.yaml``, then ``overrides``; the common sections validated (``task`` is
     validated by the task class, ``reward``/``observation`` names by the environment)."""
     defaults = _read(ENV_CONFIG_DIR / "defaults.yaml")
-    cfg = merge(defaults, _read(ENV_CONFIG_DIR / f"{task}.yaml"))
-    if overrides:
+    reference = merge(defaults, _read(ENV_CONFIG_DIR / f"{task}.yaml"))
+    cfg = reference
+    if overrides is not None:
         if not isinstance(overrides, Mapping):
-            raise EnvConfigError(f"config overrides must be a mapping, got {type(overrides).__name__}")
-        cfg = merge(cfg, overrides)
+            raise EnvConfigError(f"'config' must be a mapping of settings (e.g. {{'reward': {{'energy': 0.5}}}}), "
+                                 f"got {type(overrides).__name__} {overrides!r}")
+        cfg = merge(reference, overrides)
     allowed = set(defaults) | {"task"}
     _keys("", cfg, allowed)
+    sections("", cfg, reference)
     cfg.setdefault("task", {})
     validate_common(cfg, defaults)
     return cfg
@@ -122,6 +141,10 @@ def validate_common(cfg: dict, defaults: Mapping[str, Any]) -> None:
         cfg["physics_dt"] = number("physics_dt", cfg["physics_dt"], 0.0, cfg["ctrl_dt"], lo_open=True)
     cfg["episode_s"] = number("episode_s", cfg["episode_s"], cfg["ctrl_dt"], 600.0)
     cfg["settle_s"] = number("settle_s", cfg["settle_s"], 0.0, 60.0)
+    # a weld opening is at most pi rad (an angle) or a few link lengths (m), so 10 never triggers
+    cfg["closure_warn"] = number("closure_warn", cfg["closure_warn"], 0.0, 10.0, lo_open=True)
+    if not isinstance(cfg["closure_truncate"], bool):
+        raise EnvConfigError(f"'closure_truncate' must be true or false, got {cfg['closure_truncate']!r}")
     choice("action_mode", cfg["action_mode"], ACTION_MODES)
     choice("obs_mode", cfg["obs_mode"], OBS_MODES)
     choice("stiffness_map", cfg["stiffness_map"], STIFFNESS_MAPS)

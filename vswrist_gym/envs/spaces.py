@@ -77,12 +77,26 @@ class PostureMap:
 
 
 def check_action(action, shape: tuple[int, ...]) -> np.ndarray:
-    """The action as float64, or ValueError naming what is wrong (shape, NaN, inf)."""
-    a = np.asarray(action, dtype=np.float64)
+    """The action as float64, or a one-line ValueError naming what is wrong.
+
+    Accepted: an array (NumPy or anything ``np.asarray`` reads, e.g. a torch tensor) of exactly ``shape``
+    holding real numbers (any float or integer dtype), or a list/tuple of that many real numbers. Refused,
+    because each hides a bug in the caller rather than an action: other shapes, even of the right size
+    ((1, 4) from a batched policy, (2, 2)), since flattening them guesses the layout; complex values (the cast
+    would drop the imaginary part); booleans (a mask passed by mistake); strings, None and other objects;
+    NaN and inf."""
+    try:
+        a = np.asarray(action)
+    except (ValueError, TypeError) as exc:  # ragged nesting, or an object NumPy cannot read
+        raise ValueError(f"action must be a 1-D array of shape {shape} (or a list of {shape[0]} numbers), "
+                         f"got {type(action).__name__} that is not a regular array: {exc}") from None
+    if a.dtype.kind not in "fiu":
+        raise ValueError(f"action must hold real numbers (a float or integer dtype) in [-1, 1], got dtype "
+                         f"{a.dtype} ({type(action).__name__})")
     if a.shape != shape:
-        a = a.reshape(-1) if a.size == shape[0] else a
-        if a.shape != shape:
-            raise ValueError(f"action must have shape {shape}, got {np.shape(action)}")
+        raise ValueError(f"action must be a 1-D array of shape {shape} (or a list of {shape[0]} numbers), "
+                         f"got shape {a.shape}; reshape or index a batch yourself")
+    a = a.astype(np.float64)  # a copy: the caller's array is never modified
     if not np.isfinite(a).all():
         bad = [i for i in range(a.size) if not np.isfinite(a[i])]
         kinds = sorted({"NaN" if np.isnan(a[i]) else "inf" for i in bad})

@@ -25,6 +25,9 @@ Structure (every element named; base frame = world frame, X along the forearm):
   x3) carries each model's own spring parameters to the process-global callbacks, which ignore any model
   without it (e.g. Gymnasium's Ant in the same process). ``vswrist_motor`` tags the model for the motor
   setpoint dynamics (time constant, speed limit and lead are each actuator's ``dynprm[0:3]``).
+  ``vswrist_closure`` = (userdata slot, coupler body id, legB_end id, legC_end id): the spring callback keeps
+  the largest weld violation it sees in ``userdata[slot]`` (one per substep, at no measurable cost), so
+  ``WristSim.loop_closure_peak`` has the worst over a whole ``mj_step(m, d, n)``.
 * Cameras ``front``, ``side``, ``top``; keyframe ``home``.
 """
 
@@ -41,6 +44,8 @@ from ..params import WristParams, load_params
 SPRING_TAG = "vswrist_spring"
 MOTOR_TAG = "vswrist_motor"
 SPRING_FIELDS = 14
+CLOSURE_TAG = "vswrist_closure"
+CLOSURE_FIELDS = 4
 LEG_COLORS = ("0.85 0.3 0.25 1", "0.3 0.7 0.35 1", "0.25 0.45 0.85 1")
 LINK_RADIUS_1 = 0.03  # m, radius at which the first link bracket is drawn (visual only)
 
@@ -186,9 +191,10 @@ def model_xml(params: WristParams | str | None = None) -> str:
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{sim.timestep:.17g}" integrator="implicitfast" gravity="{gravity}" solver="Newton"
           iterations="{int(sim.solver_iterations)}" tolerance="{sim.solver_tolerance:.17g}" jacobian="dense"/>
-  <size nuserdata="0"/>
+  <size nuserdata="1"/>
   <custom>
     <numeric name="{SPRING_TAG}" data="{spring_data}"/>
+    <numeric name="{CLOSURE_TAG}" data="{_fmt([-1.0] * CLOSURE_FIELDS)}"/>
     <numeric name="{MOTOR_TAG}" data="1"/>
   </custom>
   <visual>
@@ -234,7 +240,8 @@ def build_spec(params: WristParams | str | None = None, scene_fn: SceneFn | None
 
 
 def _fill_runtime_fields(m: mujoco.MjModel, p: WristParams) -> None:
-    """Write the joint addresses the native callbacks need into the model's ``vswrist_spring`` field."""
+    """Write the joint and body addresses the native callbacks need into the model's ``vswrist_spring`` and
+    ``vswrist_closure`` fields."""
     adr = m.numeric_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, SPRING_TAG)]
     ids_link = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"leg{n}_q1") for n in LEG_NAMES]
     ids_motor = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"motor_{n}") for n in LEG_NAMES]
@@ -242,6 +249,10 @@ def _fill_runtime_fields(m: mujoco.MjModel, p: WristParams) -> None:
     data += [m.jnt_dofadr[j] for j in ids_link] + [m.jnt_dofadr[j] for j in ids_motor]
     data += [m.jnt_qposadr[j] for j in ids_link] + [m.jnt_qposadr[j] for j in ids_motor]
     m.numeric_data[adr:adr + SPRING_FIELDS] = data
+    adr = m.numeric_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, CLOSURE_TAG)]
+    bodies = ["coupler"] + [f"leg{n}_end" for n in LEG_NAMES[1:]]
+    m.numeric_data[adr:adr + CLOSURE_FIELDS] = [0] + [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b)
+                                                      for b in bodies]
 
 
 def home_motor_angles(params: WristParams | str | None = None) -> np.ndarray:

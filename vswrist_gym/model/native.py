@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import math
 import os
 import shutil
 import subprocess
@@ -25,7 +26,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .builder import MOTOR_TAG, SPRING_FIELDS, SPRING_TAG
+from .builder import CLOSURE_FIELDS, CLOSURE_TAG, MOTOR_TAG, SPRING_FIELDS, SPRING_TAG
 
 C_SOURCE = r"""
 #include <math.h>
@@ -33,6 +34,7 @@ C_SOURCE = r"""
 #include <mujoco/mujoco.h>
 
 #define SPRING_FIELDS %(fields)d
+#define CLOSURE_FIELDS %(closure_fields)d
 
 static mjfGeneric prev_passive = 0;
 static mjfAct prev_act_dyn = 0;
@@ -44,6 +46,33 @@ static const mjtNum* find_numeric(const mjModel* m, const char* name, int size) 
     }
   }
   return 0;
+}
+
+/* Loop-closure monitor: the largest weld violation (m or rad, as WristSim.loop_closure_error: the distance
+   between the coupler's and a leg end's origins, or the angle between their frames) seen at any evaluation is
+   kept in userdata[slot]. Body poses are current here (mj_fwdPosition runs before mj_passive), so a step of n
+   substeps checks the state at the start of each of them, for a few dozen flops each. */
+static void vswrist_closure(const mjModel* m, mjData* d) {
+  const mjtNum* c = find_numeric(m, "%(closure)s", CLOSURE_FIELDS);
+  if (!c) return;
+  const int slot = (int)c[0], cb = (int)c[1];
+  if (slot < 0 || slot >= m->nuserdata || cb < 0) return;
+  const mjtNum* pc = d->xpos + 3 * cb;
+  const mjtNum* qc = d->xquat + 4 * cb;
+  mjtNum worst = d->userdata[slot];
+  for (int k = 2; k < CLOSURE_FIELDS; k++) {
+    const int e = (int)c[k];
+    const mjtNum* pe = d->xpos + 3 * e;
+    const mjtNum* qe = d->xquat + 4 * e;
+    const mjtNum dx = pe[0] - pc[0], dy = pe[1] - pc[1], dz = pe[2] - pc[2];
+    const mjtNum dist = sqrt(dx * dx + dy * dy + dz * dz);
+    mjtNum dot = fabs(qc[0] * qe[0] + qc[1] * qe[1] + qc[2] * qe[2] + qc[3] * qe[3]);
+    if (dot > 1.0) dot = 1.0;
+    const mjtNum angle = 2.0 * acos(dot);
+    if (dist > worst) worst = dist;
+    if (angle > worst) worst = angle;
+  }
+  d->userdata[slot] = worst;
 }
 
 /* tau = -2 K sinh((q1 - theta) / delta0): +tau on the leg's first joint, -tau on the motor rotor. */
@@ -60,6 +89,7 @@ static void vswrist_passive(const mjModel* m, mjData* d) {
     d->qfrc_passive[(int)p[2 + k]] += tau;
     d->qfrc_passive[(int)p[5 + k]] -= tau;
   }
+  vswrist_closure(m, d);
 }
 
 /* Servo setpoint: a rate-limited first-order low-pass of the reference (ctrl),
@@ -100,7 +130,8 @@ void vswrist_uninstall(void) {
   prev_passive = 0;
   prev_act_dyn = 0;
 }
-""" % {"fields": SPRING_FIELDS, "spring": SPRING_TAG, "motor": MOTOR_TAG}
+""" % {"fields": SPRING_FIELDS, "spring": SPRING_TAG, "motor": MOTOR_TAG, "closure": CLOSURE_TAG,
+       "closure_fields": CLOSURE_FIELDS}
 
 _lib: ctypes.CDLL | None = None
 _backend: str | None = None
@@ -176,6 +207,33 @@ def _py_passive(m, d) -> None:
     tau = -2.0 * p[0] * np.sinh(delta / p[1])
     d.qfrc_passive[idx[0:3]] += tau
     d.qfrc_passive[idx[3:6]] -= tau
+    _py_closure(m, d)
+
+
+def weld_violation(xpos, xquat, coupler: int, ends) -> float:
+    """Largest violation of the welds between body ``coupler`` and bodies ``ends``: the distance between their
+    origins (m) or the angle between their frames (rad), whichever is larger (the C monitor's formula)."""
+    pc, qc = xpos[coupler].tolist(), xquat[coupler].tolist()
+    worst = 0.0
+    for e in ends:
+        pe, qe = xpos[e].tolist(), xquat[e].tolist()
+        dx, dy, dz = pe[0] - pc[0], pe[1] - pc[1], pe[2] - pc[2]
+        dot = abs(qc[0] * qe[0] + qc[1] * qe[1] + qc[2] * qe[2] + qc[3] * qe[3])
+        worst = max(worst, math.sqrt(dx * dx + dy * dy + dz * dz), 2.0 * math.acos(min(1.0, dot)))
+    return worst
+
+
+def _py_closure(m, d) -> None:
+    """The C monitor's twin: keep the largest weld violation seen in ``userdata[slot]``."""
+    try:
+        c = m.numeric(CLOSURE_TAG).data
+    except KeyError:
+        return
+    if c.shape[0] != CLOSURE_FIELDS or not 0 <= int(c[0]) < m.nuserdata or c[1] < 0:
+        return
+    slot = int(c[0])
+    d.userdata[slot] = max(float(d.userdata[slot]),
+                           weld_violation(d.xpos, d.xquat, int(c[1]), [int(e) for e in c[2:]]))
 
 
 def _py_act_dyn(m, d, i) -> float:
