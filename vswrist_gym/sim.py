@@ -58,7 +58,8 @@ class WristSim:
         self.params = load_params(params)
         self.kin = WristKinematics(self.params)
         self.backend = native.install()
-        self.model = build_model(self.params, scene_fn)
+        with native.compiling():
+            self.model = build_model(self.params, scene_fn)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.timestep = float(m.opt.timestep)

@@ -12,6 +12,7 @@ compiler the same callbacks run in Python (correct, several times slower): ``bac
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import math
@@ -286,6 +287,24 @@ def install(prefer: str = "auto") -> str:
         mujoco.set_mjcb_act_dyn(_py_act_dyn)
     _backend = "python"
     return _backend
+
+
+@contextlib.contextmanager
+def compiling():
+    """Hold the Python callbacks off while MuJoCo compiles a model: the compiler may run the physics on a model
+    the Python bindings cannot wrap yet, and the callback then fails inside the compiler. A model being
+    compiled needs no springs; the C callbacks read raw models and stay."""
+    if _backend != "python":
+        yield
+        return
+    saved = dict(_py_prev)
+    _uninstall_python()
+    try:
+        yield
+    finally:
+        _py_prev.update(saved)
+        mujoco.set_mjcb_passive(_py_passive)
+        mujoco.set_mjcb_act_dyn(_py_act_dyn)
 
 
 def _uninstall_python() -> None:
