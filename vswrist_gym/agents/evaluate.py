@@ -3,6 +3,9 @@
 Examples:
     vswrist evaluate --task LoadHold --agent runs/loadhold_ppo_0 --episodes 10 --seeds 0 1 2 --out eval/ppo
     vswrist evaluate --task LoadHold --agent analytic:0.5 --episodes 10 --seeds 0 1 2 --out eval/analytic_0.5
+
+`--out` is checked before the first episode (writable, and either new, empty or an earlier evaluation's folder);
+every finished episode is saved to OUT/episodes.partial.jsonl at once, so a crash or kill loses none of them.
 """
 
 from __future__ import annotations
