@@ -235,6 +235,13 @@ def test_resume_with_no_intact_checkpoint_says_so_and_changes_nothing(sac_run, t
     shutil.copytree(sac_run, run)
     for ck in runs.checkpoints(run):
         (ck / "model.zip").write_bytes(b"PK\x03\x04 truncated")
+    # the final model is the last resort: no replay buffer beside it, and the resume says so
+    final = tmp_path / "final"
+    shutil.copytree(run, final)
+    logs = []
+    train_mod.train(TASK, "sac", final, timesteps=800, resume=True, progress=False, log=logs.append)
+    assert any("final model.zip (600 of 800" in m for m in logs) and any("empty one" in m for m in logs), logs
+    (run / "model.zip").write_bytes(b"PK\x03\x04 truncated")
     before = _tree(run)
     with pytest.raises(runs.RunDirError, match="no intact checkpoint.*step_0000000600.*step_0000000400"):
         train_mod.train(TASK, "sac", run, timesteps=800, resume=True, progress=False, log=lambda *_: None)

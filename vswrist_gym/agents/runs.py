@@ -16,6 +16,10 @@ Layout of a run directory written by `vswrist train`:
 What makes a folder a run directory is its `config.yaml`; `vswrist train` refuses to start a new run in a folder
 that holds anything else.
 
+Every kept checkpoint holds the SAC replay buffer (its filled part only), so that `--resume --timesteps N`
+continues with the transitions the run had, also when it falls back to the older checkpoint; a run that will not
+be extended needs only `model.zip` and `vecnormalize.npz`, and its `checkpoints/` may be deleted.
+
 A checkpoint is written into a temporary folder and renamed into place, then `latest.json` is replaced
 atomically; an interrupted run therefore never leaves a half-written checkpoint as the latest. `--resume` loads the
 newest checkpoint that reads back completely and falls back to an older one when the newest is damaged.
@@ -578,6 +582,8 @@ def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=prin
     latest = latest_checkpoint(run_dir)
     if latest is not None and latest in found:  # latest.json first, then the others newest first
         found = [latest] + [c for c in found if c != latest]
+    if (Path(run_dir) / "model.zip").is_file():  # the final model last: it has no replay buffer
+        found.append(Path(run_dir))
     damaged = []
     for ck in found:
         try:
@@ -586,7 +592,11 @@ def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=prin
             damaged.append(f"{ck.name}: {exc}")
             continue
         if damaged:
-            log(f"checkpoint {damaged[0]}; resuming from the newest intact one, {ck.name}")
+            what = ck.name if ck != Path(run_dir) else "the run's final model.zip"
+            log(f"checkpoint {damaged[0]}; resuming from the newest intact one, {what}")
+        if getattr(model, "replay_buffer", None) is not None and not any(
+                (ck / name).is_file() for name in (REPLAY_FILE, REPLAY_LEGACY_FILE)):
+            log(f"{ck / 'model.zip'} has no replay buffer beside it: training continues with an empty one")
         return ck, model, env
     if damaged:
         raise RunDirError(f"no intact checkpoint in {Path(run_dir) / 'checkpoints'}: " + "; ".join(damaged)

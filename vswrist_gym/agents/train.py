@@ -202,7 +202,8 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             checkpoint, model, venv = load_newest_intact(run_dir, algo, venv, cfg.normalize is not None, log=log)
         if model is not None:
             model.tensorboard_log = str(run_dir / "tb")
-            log(f"resuming {run_dir} from {checkpoint.name} ({model.num_timesteps} of {cfg.n_timesteps} steps)")
+            where = checkpoint.name if checkpoint != run_dir else "its final model.zip"
+            log(f"resuming {run_dir} from {where} ({model.num_timesteps} of {cfg.n_timesteps} steps)")
         else:
             if resume:
                 log(f"no checkpoint in {run_dir}: starting from scratch")
