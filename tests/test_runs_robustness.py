@@ -156,6 +156,12 @@ def test_non_empty_folder_that_is_not_a_run_is_refused(tmp_path):
     line = one_line_error(vswrist("compare", "--task", "LoadHold", "--seeds", "0", "--out", folder), "compare")
     assert "thesis.tex" in line
     assert _tree(folder) == before
+    # --retrain deletes runs only: a folder of the run's name that is not a run is refused, not deleted
+    (tmp_path / "runs" / "ppo_seed0").mkdir(parents=True)
+    (tmp_path / "runs" / "ppo_seed0" / "data.csv").write_text("1,2,3")
+    line = one_line_error(vswrist("compare", "--task", "LoadHold", "--algos", "ppo", "--seeds", "0", "--retrain",
+                                  "--out", tmp_path / "cmp", "--runs-dir", tmp_path / "runs"), "compare")
+    assert "data.csv" in line and (tmp_path / "runs" / "ppo_seed0" / "data.csv").read_text() == "1,2,3"
 
 
 def test_a_failed_start_leaves_no_half_made_run(tmp_path, sac_config, monkeypatch):

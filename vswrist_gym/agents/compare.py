@@ -40,7 +40,7 @@ def _short(env_id: str) -> str:
 
 def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | None, config, retrain: bool):
     """What a (algo, seed) run needs: ('load' | 'resume' | 'train', steps wanted)."""
-    if retrain and run_dir.exists():
+    if retrain and (run_dir / "config.yaml").exists():  # only a run is deleted; any other folder is refused later
         shutil.rmtree(run_dir)
     wanted = timesteps or load_config(algo, env_id, config).n_timesteps
     if (run_dir / "config.yaml").exists():
