@@ -216,6 +216,34 @@ def test_evaluate_keeps_finished_episodes_when_it_fails(tmp_path, monkeypatch):
     assert not (tmp_path / "broken" / protocol.PARTIAL_FILE).exists()
 
 
+def test_evaluate_killed_outright_keeps_finished_episodes(tmp_path):
+    """SIGKILL during an evaluation: the partial file reads back whole, with every episode finished before."""
+    out = tmp_path / "eval"
+    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning"}
+    proc = subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", "evaluate", "--task", "LoadHold", "--agent",
+                             "analytic:0.5", "--episodes", "200", "--seeds", "0", "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    partial = out / protocol.PARTIAL_FILE
+
+    def two_done():
+        try:
+            return len(protocol.read_partial(partial)[1]) >= 2
+        except (OSError, ValueError, IndexError):
+            return False
+
+    try:
+        assert _wait_for(two_done), "no episode finished within the time limit"
+        proc.kill()
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    header, records = protocol.read_partial(partial)  # whole lines only: every rewrite is atomic
+    assert header["agent"] == "analytic:+0.50" and len(records) >= 2
+    assert [r["episode"] for r in records] == list(range(len(records)))
+    assert not (out / "metrics.json").exists()
+
+
 # ------------------------------------------------------------------------------------------- recovery
 
 
