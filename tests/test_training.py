@@ -205,7 +205,7 @@ def trained_run(tmp_path_factory):
 
 
 def test_train_writes_a_self_describing_run_dir(trained_run):
-    for name in ("config.yaml", "run.json", "model.zip", "vecnormalize.pkl", "checkpoints/latest.json",
+    for name in ("config.yaml", "run.json", "model.zip", "vecnormalize.npz", "checkpoints/latest.json",
                  "eval/evaluations.npz"):
         assert (trained_run / name).exists(), name
     doc = json.loads((trained_run / "run.json").read_text())

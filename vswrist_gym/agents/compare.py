@@ -21,8 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config
-from vswrist_gym.agents.protocol import METRICS, json_safe, evaluate, summarise, write_metrics
-from vswrist_gym.agents.runs import RunDirError, TrainedAgent, read_config, versions
+from vswrist_gym.agents.protocol import (METRICS, check_eval_seeds, evaluate, json_safe, summarise,
+                                         write_metrics, write_partial)
+from vswrist_gym.agents.runs import (RunDirError, TrainedAgent, check_new_out, check_seed, check_writable,
+                                     folder_bytes, read_config, steps_done, versions)
+
+# what a compare output folder holds: a folder with anything else is refused as --out
+COMPARE_OUTPUT_NAMES = ("table.md", "summary.json", "learning_curves.png", "traces.png", "eval", "runs")
 
 DEFAULT_STIFFNESS_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 TABLE_METRICS = ("return", "success", "rms_posture_error", "peak_contact_force", "rms_contact_force",
@@ -35,7 +40,7 @@ def _short(env_id: str) -> str:
 
 def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | None, config, retrain: bool):
     """What a (algo, seed) run needs: ('load' | 'resume' | 'train', steps wanted)."""
-    if retrain and run_dir.exists():
+    if retrain and (run_dir / "config.yaml").exists():  # only a run is deleted; any other folder is refused later
         shutil.rmtree(run_dir)
     wanted = timesteps or load_config(algo, env_id, config).n_timesteps
     if (run_dir / "config.yaml").exists():
@@ -48,18 +53,6 @@ def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | 
             return "load", wanted
         return "resume", wanted
     return "train", wanted
-
-
-def steps_done(run_dir: Path) -> int:
-    """Environment steps of finished training episodes, from the Monitor logs (cheap progress for subprocesses)."""
-    total = 0
-    for f in (run_dir / "monitor").glob("*.monitor.csv"):
-        try:
-            lines = f.read_text().splitlines()[2:]
-            total += sum(int(float(line.split(",")[1])) for line in lines if line.count(",") >= 2)
-        except (OSError, ValueError, IndexError):
-            pass
-    return total
 
 
 def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: bool, log) -> None:
@@ -267,13 +260,17 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
             jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=print) -> dict:
     from vswrist_gym.agents.evaluate import AgentSpec
     from vswrist_gym.agents.runs import limit_threads
-    from vswrist_gym.agents.train import task_id
+    from vswrist_gym.agents.train import check_run_out, task_id
 
-    limit_threads(1)
+    seeds = [check_seed(s, "--seeds") for s in seeds]  # training seeds, and evaluation seeds below
+    check_eval_seeds(seeds, episodes)
     env_id = task_id(task)
     out = Path(out) if out else Path("runs") / "compare" / _short(env_id)
-    out.mkdir(parents=True, exist_ok=True)
-    seeds = [int(s) for s in seeds]
+    check_new_out(out, allowed=COMPARE_OUTPUT_NAMES,
+                  what=f"a vswrist compare output folder ({', '.join(COMPARE_OUTPUT_NAMES)})")
+    if runs_dir:
+        check_writable(runs_dir, "--runs-dir")
+    limit_threads(1)
     timesteps, configs = timesteps or {}, configs or {}
     t0 = time.time()
     load_start = os.getloadavg()[0]  # other work on the machine slows the wall time: record it
@@ -287,8 +284,15 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
             plans.append({"algo": algo, "seed": s, "run_dir": run_dir, "action": action, "wanted": wanted,
                           "config": configs.get(algo), "what": f"loaded ({wanted} steps)"})
             runs[algo].append(run_dir)
-            if action == "load":
-                log(f"[{algo} seed {s}] loaded {run_dir} ({wanted} steps)")
+    for p in plans:  # every run directory checked before the first training starts
+        if p["action"] == "train":
+            check_run_out(p["run_dir"], resume=False)
+        elif p["action"] == "resume":
+            check_writable(p["run_dir"], "run directory")
+    out.mkdir(parents=True, exist_ok=True)
+    for p in plans:
+        if p["action"] == "load":
+            log(f"[{p['algo']} seed {p['seed']}] loaded {p['run_dir']} ({p['wanted']} steps)")
     run_trainings(env_id, plans, jobs, n_envs, progress, log)
     training = {f"{p['algo']}_seed{p['seed']}": p["what"] for p in plans}
     # a run whose environment failed is reported and left out, not silently dropped
@@ -303,18 +307,21 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
     env_kwargs_seen = set()
     for algo in algos:
         records = []
+        head = {"task": env_id, "agent": algo.upper(), "seeds": seeds, "episodes_per_seed": episodes}
+        (out / "eval" / algo).mkdir(parents=True, exist_ok=True)
         for run_dir in runs[algo]:
             agent = TrainedAgent(run_dir)
             s = agent.seed
             env_kwargs_seen.add(json.dumps(agent.cfg.env_kwargs, sort_keys=True))
             recs, tr = evaluate(env_id, lambda env, a=agent: (a.check_env(env), a)[1], [s], episodes,
-                                env_kwargs=agent.cfg.env_kwargs, trace_episode=trace_at)
+                                env_kwargs=agent.cfg.env_kwargs, trace_episode=trace_at,
+                                on_record=lambda r, done=list(records): write_partial(out / "eval" / algo, head,
+                                                                                      done + r))
             records += recs
             if tr is not None:
                 traces[algo.upper()] = tr
         rows[algo.upper()] = summarise(records)
-        write_metrics(out / "eval" / algo, {"task": env_id, "agent": algo.upper(), "seeds": seeds,
-                                            "episodes_per_seed": episodes}, records, rows[algo.upper()])
+        write_metrics(out / "eval" / algo, head, records, rows[algo.upper()])
         log(f"evaluated {algo.upper()}: return {rows[algo.upper()]['return']['mean']:.4g}")
     if len(env_kwargs_seen) > 1:
         log("warning: the PPO and SAC runs use different env_kwargs; their rows are not on the same environment")
@@ -322,13 +329,15 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
     if analytic:
         for k in stiffness:
             spec = AgentSpec(f"analytic:{k}")
-            records, tr = evaluate(env_id, spec.make, seeds, episodes, trace_episode=trace_at)
+            folder = out / "eval" / f"analytic_{k:+.2f}"
+            head = {"task": env_id, "agent": spec.label, "seeds": seeds, "episodes_per_seed": episodes}
+            folder.mkdir(parents=True, exist_ok=True)
+            records, tr = evaluate(env_id, spec.make, seeds, episodes, trace_episode=trace_at,
+                                   on_record=lambda r, f=folder, h=head: write_partial(f, h, r))
             rows[spec.label] = summarise(records)
             baselines.append(spec.label)
             traces[spec.label] = tr
-            write_metrics(out / "eval" / f"analytic_{k:+.2f}",
-                          {"task": env_id, "agent": spec.label, "seeds": seeds, "episodes_per_seed": episodes},
-                          records, rows[spec.label])
+            write_metrics(folder, head, records, rows[spec.label])
             log(f"evaluated {spec.label}: return {rows[spec.label]['return']['mean']:.4g}")
     t_total = time.time() - t0
 
@@ -346,6 +355,7 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
     plot_learning_curves(out / "learning_curves.png", runs, baseline_line, f"{env_id}: periodic evaluation")
     plot_traces(out / "traces.png", traces, f"{env_id}: evaluation episode (seed {trace_at[0]}, episode 0)",
                 highlight=verdict.get("best_baseline"))
+    footprint = {a.upper(): sum(folder_bytes(d) for d in runs[a]) for a in algos}
     doc = {"task": env_id, "seeds": seeds, "episodes_per_seed": episodes, "stiffness_levels": list(stiffness),
            "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
            "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
@@ -363,6 +373,8 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
         md += ["", f"Command: `vswrist compare {shlex.join(argv)}`"]
     (out / "table.md").write_text("\n".join(md) + "\n")
     doc["table"], doc["header"], doc["out"] = table, header, out
+    doc["footprint"] = {"run_bytes": footprint, "runs_dir": str(Path(runs_dir) if runs_dir else out / "runs"),
+                        "out_bytes": folder_bytes(out)}
     return doc
 
 
@@ -412,6 +424,9 @@ def main(argv: list[str] | None = None) -> int:
     except RuntimeError as exc:  # TrainingError: an environment or worker failed during training
         print(f"vswrist compare: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # the disk filled or a folder became unwritable during the job
+        print(f"vswrist compare: error: {exc}", file=sys.stderr)
+        return 1
     print()
     print(doc["header"])
     print(doc["table"])
@@ -423,4 +438,7 @@ def main(argv: list[str] | None = None) -> int:
     out = doc["out"]
     print(f"\ntable: {out / 'table.md'}\nplots: {out / 'learning_curves.png'}, {out / 'traces.png'}"
           f"\nper-episode metrics: {out / 'eval'}/*/metrics.csv")
+    fp = doc["footprint"]
+    per_algo = ", ".join(f"{a} {n / 1e6:.1f} MB" for a, n in fp["run_bytes"].items())
+    print(f"disk: {fp['out_bytes'] / 1e6:.1f} MB in {out}; run directories in {fp['runs_dir']} ({per_algo})")
     return 0

@@ -3,6 +3,9 @@
 Examples:
     vswrist evaluate --task LoadHold --agent runs/loadhold_ppo_0 --episodes 10 --seeds 0 1 2 --out eval/ppo
     vswrist evaluate --task LoadHold --agent analytic:0.5 --episodes 10 --seeds 0 1 2 --out eval/analytic_0.5
+
+`--out` is checked before the first episode (writable, and either new, empty or an earlier evaluation's folder);
+every finished episode is saved to OUT/episodes.partial.jsonl at once, so a crash or kill loses none of them.
 """
 
 from __future__ import annotations
@@ -13,8 +16,12 @@ import sys
 from pathlib import Path
 
 from vswrist_gym.agents.hparams import ConfigError
-from vswrist_gym.agents.protocol import METRICS, evaluate, summarise, write_metrics
-from vswrist_gym.agents.runs import RunDirError, TrainedAgent, versions
+from vswrist_gym.agents.protocol import (METRICS, PARTIAL_FILE, check_eval_seeds, evaluate, summarise, write_metrics,
+                                         write_partial)
+from vswrist_gym.agents.runs import RunDirError, TrainedAgent, check_new_out, check_writable, versions
+
+# what an evaluation output folder holds: a folder with anything else is refused as --out
+EVAL_OUTPUT_NAMES = ("metrics.json", "metrics.csv", PARTIAL_FILE)
 
 
 class AgentSpec:
@@ -73,13 +80,17 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
     from vswrist_gym.agents.runs import limit_threads
     from vswrist_gym.agents.train import task_id
 
+    out = Path(out)
+    seeds = check_eval_seeds(seeds, episodes)
+    check_new_out(out, allowed=EVAL_OUTPUT_NAMES, what="an evaluation output folder (metrics.json, metrics.csv)")
+    if video is not None:
+        check_writable(Path(video).parent, "--video")
+        if Path(video).is_dir():
+            raise ConfigError(f"--video {video} is a folder; give a file name such as episode.mp4")
     limit_threads(1)
     env_id = task_id(task)
     spec = AgentSpec(agent, checkpoint=checkpoint)
     spec.check_task(env_id)
-    records, trace = evaluate(env_id, spec.make, seeds, episodes, env_kwargs=spec.env_kwargs,
-                              trace_episode=trace_episode, video_path=video)
-    summary = summarise(records)
     header = {"task": env_id, "agent": spec.label, "agent_spec": agent, "checkpoint": checkpoint,
               "episodes_per_seed": episodes, "seeds": list(seeds), "versions": versions()}
     if argv is not None:
@@ -88,7 +99,12 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
         header["training_seed"] = spec.trained.seed
     if video is not None:
         header["video"] = str(video)
-    write_metrics(Path(out), header, records, summary)
+    out.mkdir(parents=True, exist_ok=True)
+    records, trace = evaluate(env_id, spec.make, seeds, episodes, env_kwargs=spec.env_kwargs,
+                              trace_episode=trace_episode, video_path=video,
+                              on_record=lambda recs: write_partial(out, header, recs))
+    summary = summarise(records)
+    write_metrics(out, header, records, summary)
     return {**header, "summary": summary, "trace": trace}
 
 
@@ -123,7 +139,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vswrist evaluate: error: {exc}", file=sys.stderr)
         return 2
     except RuntimeError as exc:  # the simulation failed (e.g. SimulationError) during an episode
-        print(f"vswrist evaluate: error: the environment failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        partial = Path(args.out) / PARTIAL_FILE
+        kept = f"; the episodes finished before it are in {partial}" if partial.is_file() else ""
+        print(f"vswrist evaluate: error: the environment failed: {type(exc).__name__}: {exc}{kept}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # the disk filled or the folder became unwritable during the evaluation
+        print(f"vswrist evaluate: error: {exc}", file=sys.stderr)
         return 1
     print(f"{doc['agent']} on {doc['task']}: {args.episodes} episodes x seeds {args.seeds}")
     print(format_summary(doc["summary"]))

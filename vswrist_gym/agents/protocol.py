@@ -9,6 +9,7 @@ lam [N m], is_success); a metric whose info key the environment does not provide
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from dataclasses import dataclass, field
@@ -32,10 +33,28 @@ METRICS = {
 }
 
 
+EVAL_SEED_MAX = (2**32 - 1 - EVAL_SEED_BASE) // 1000 - 1  # keeps every reset seed a valid 32-bit NumPy seed
+
+
 def reset_seed(seed: int, episode: int) -> int:
     if not 0 <= episode < EPISODES_PER_SEED_MAX:
         raise ValueError(f"episodes per seed must be in [1, {EPISODES_PER_SEED_MAX}]")
     return EVAL_SEED_BASE + 1000 * int(seed) + int(episode)
+
+
+def check_eval_seeds(seeds, episodes: int) -> list[int]:
+    """The evaluation seeds and episode count, checked before any environment is built."""
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) \
+            or not 1 <= episodes <= EPISODES_PER_SEED_MAX:
+        raise ValueError(f"episodes must be in [1, {EPISODES_PER_SEED_MAX}], got {episodes}")
+    seeds = list(seeds)
+    if not seeds:
+        raise ValueError("at least one evaluation seed is needed")
+    for s in seeds:
+        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or not 0 <= s <= EVAL_SEED_MAX:
+            raise ValueError(f"evaluation seeds must be integers in [0, {EVAL_SEED_MAX}] (episode i of seed s "
+                             f"resets with seed {EVAL_SEED_BASE} + 1000 s + i < 2**32), got {s}")
+    return [int(s) for s in seeds]
 
 
 @dataclass
@@ -109,20 +128,17 @@ def run_episode(env, agent, seed: int, frames: list | None = None) -> tuple[dict
 
 def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | None = None,
              trace_episode: tuple[int, int] | None = None, video_path: str | Path | None = None,
-             progress=None) -> tuple[list[dict], dict | None]:
+             progress=None, on_record=None) -> tuple[list[dict], dict | None]:
     """Evaluate one agent under the protocol; returns per-episode records and the requested episode's trace.
 
     `make_agent(env)` builds the agent for an environment (the analytic agent needs it; a trained one ignores it).
+    `on_record(records)` is called with the records so far after every episode (to save them as they come).
     """
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401
 
-    if episodes < 1 or episodes > EPISODES_PER_SEED_MAX:
-        raise ValueError(f"episodes must be in [1, {EPISODES_PER_SEED_MAX}], got {episodes}")
-    seeds = [int(s) for s in seeds]
-    if not seeds:
-        raise ValueError("at least one evaluation seed is needed")
+    seeds = check_eval_seeds(seeds, episodes)
     env_kwargs = dict(env_kwargs or {})
     env = gym.make(env_id, **env_kwargs)
     try:
@@ -134,6 +150,8 @@ def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | N
                 records.append({"seed": s, "episode": i, "reset_seed": reset_seed(s, i), **rec})
                 if trace_episode == (s, i):
                     trace = tr.to_dict()
+                if on_record is not None:
+                    on_record(records)
                 if progress is not None:
                     progress()
     finally:
@@ -227,15 +245,41 @@ def json_safe(obj):
     return obj
 
 
+PARTIAL_FILE = "episodes.partial.jsonl"  # the episodes finished so far; gone once metrics.json is written
+
+
+def write_partial(out_dir: Path, header: dict, records: list[dict]) -> Path:
+    """Rewrite DIR/episodes.partial.jsonl (a header line, then one line per finished episode) atomically, so a
+    crash or kill during an evaluation loses no finished episode and never leaves a half-written file."""
+    from vswrist_gym.agents.runs import atomic_write_text
+
+    path = Path(out_dir) / PARTIAL_FILE
+    lines = [json.dumps(json_safe({"header": header}))] + [json.dumps(json_safe(r)) for r in records]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return path
+
+
+def read_partial(path: Path) -> tuple[dict, list[dict]]:
+    """Header and episode records of an episodes.partial.jsonl (None stands for NaN)."""
+    lines = Path(path).read_text().splitlines()
+    return json.loads(lines[0])["header"], [json.loads(line) for line in lines[1:]]
+
+
 def write_metrics(out_dir: Path, header: dict, records: list[dict], summary: dict) -> tuple[Path, Path]:
+    """DIR/metrics.json and DIR/metrics.csv, each written atomically; then the partial file is dropped."""
+    from vswrist_gym.agents.runs import atomic_write_text
+
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     json_path, csv_path = out_dir / "metrics.json", out_dir / "metrics.csv"
     doc = {**header, "metrics": {k: {"unit": u, "description": d} for k, (u, d) in METRICS.items()},
            "summary": summary, "episodes": records}
-    json_path.write_text(json.dumps(json_safe(doc), indent=2))
-    with csv_path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=["agent", "seed", "episode", "reset_seed", *METRICS])
-        writer.writeheader()
-        for r in records:
-            writer.writerow({"agent": header.get("agent", ""), **{k: r[k] for k in writer.fieldnames if k in r}})
+    atomic_write_text(json_path, json.dumps(json_safe(doc), indent=2))
+    buf = io.StringIO(newline="")
+    writer = csv.DictWriter(buf, fieldnames=["agent", "seed", "episode", "reset_seed", *METRICS])
+    writer.writeheader()
+    for r in records:
+        writer.writerow({"agent": header.get("agent", ""), **{k: r[k] for k in writer.fieldnames if k in r}})
+    atomic_write_text(csv_path, buf.getvalue())
+    (out_dir / PARTIAL_FILE).unlink(missing_ok=True)
     return json_path, csv_path

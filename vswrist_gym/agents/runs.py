@@ -3,16 +3,31 @@
 Layout of a run directory written by `vswrist train`:
 
     config.yaml          the resolved hyperparameter entry (plus env id, algo, seed): re-runnable as is
-    run.json             command lines (one per invocation), seed, package versions, status
+    run.json             command lines (one per invocation), seed, package versions, status, the training
+                         process (pid, host, start time) and a history of ended invocations (finished,
+                         interrupted, failed, killed) with the step each reached
     model.zip            final model (written at the end, atomically)
-    vecnormalize.pkl     final observation/reward normalisation statistics (when normalisation is on)
-    checkpoints/step_<N>/{model.zip, vecnormalize.pkl, replay_buffer.pkl}, checkpoints/latest.json
+    vecnormalize.npz     final observation/reward normalisation statistics as plain arrays (when normalisation is on)
+    checkpoints/step_<N>/{model.zip, vecnormalize.npz, replay_buffer.npz}, checkpoints/latest.json
     eval/evaluations.npz periodic evaluation (learning curve), eval/best_model.zip
     tb/                  TensorBoard logs
     monitor/             per-environment episode logs (Monitor CSV)
 
+What makes a folder a run directory is its `config.yaml`; `vswrist train` refuses to start a new run in a folder
+that holds anything else.
+
+Every kept checkpoint holds the SAC replay buffer (its filled part only), so that `--resume --timesteps N`
+continues with the transitions the run had, also when it falls back to the older checkpoint; a run that will not
+be extended needs only `model.zip` and `vecnormalize.npz`, and its `checkpoints/` may be deleted.
+
 A checkpoint is written into a temporary folder and renamed into place, then `latest.json` is replaced
-atomically; an interrupted run therefore never leaves a half-written checkpoint as the latest.
+atomically; an interrupted run therefore never leaves a half-written checkpoint as the latest. `--resume` loads the
+newest checkpoint that reads back completely and falls back to an older one when the newest is damaged.
+
+Loading a run's data executes nothing: normalisation statistics and the SAC replay buffer are `.npz` arrays read
+with `allow_pickle=False`; an older run's `vecnormalize.pkl` is read through an unpickler that admits only the
+classes VecNormalize statistics are made of. `model.zip` is stable-baselines3's own format, which holds pickled
+objects: a model file is code and must come from a trusted source.
 """
 
 from __future__ import annotations
@@ -26,6 +41,7 @@ import shutil
 import sys
 import tempfile
 import time
+import zipfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -86,6 +102,134 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
+
+
+def atomic_write_npz(path: Path, arrays: dict) -> None:
+    """`np.savez` into memory, then an atomic write: a kill never leaves a half-written archive under `path`."""
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+# --------------------------------------------------------------------------------------------------- input checks
+
+SEED_MAX = 2**32 - 1  # NumPy's and stable-baselines3's seeds are unsigned 32-bit integers
+
+
+def check_seed(seed, name: str = "--seed") -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) <= SEED_MAX:
+        raise ConfigError(f"{name} must be an integer in [0, 2**32 - 1 = {SEED_MAX}] (the range NumPy and "
+                          f"stable-baselines3 accept), got {seed}")
+    return int(seed)
+
+
+def _nearest_existing(path: Path) -> Path:
+    path = Path(os.path.abspath(path))
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def check_writable(path: str | Path, name: str = "--out") -> None:
+    """`path` (a folder, existing or not) can be created and written: a probe file is created and removed in the
+    folder itself or, when it does not exist yet, in its nearest existing ancestor. Raises RunDirError otherwise."""
+    path = Path(path)
+    base = _nearest_existing(path)
+    if not base.is_dir():
+        what = "is a file" if base == Path(os.path.abspath(path)) else f"lies under {base}, which is a file"
+        raise RunDirError(f"{name} {path}: cannot be a folder: it {what}")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".vswrist_write_probe_", dir=base)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        where = "" if base == Path(os.path.abspath(path)) else f" (in {base}, its nearest existing folder)"
+        raise RunDirError(f"{name} {path}: not writable{where}: {exc.strerror or exc}") from None
+
+
+def check_new_out(path: str | Path, allowed: tuple[str, ...], what: str, name: str = "--out") -> None:
+    """A folder to write `what` into: writable, and either absent, empty, or holding only names in `allowed`
+    (output of the same kind, which the command replaces or continues). A non-empty folder of anything else is
+    refused, so that no command writes its files among someone else's."""
+    path = Path(path)
+    check_writable(path, name)
+    if path.is_dir():
+        other = sorted(p.name for p in path.iterdir() if p.name not in allowed)
+        if other:
+            shown = ", ".join(other[:5]) + (f" and {len(other) - 5} more" if len(other) > 5 else "")
+            raise RunDirError(f"{name} {path} is a non-empty folder that is not {what} (it holds {shown}); "
+                              f"choose a new or empty folder")
+
+
+def created_root(path: Path) -> Path | None:
+    """The top-most folder that `mkdir(parents=True)` of `path` would create (None when `path` exists)."""
+    path = Path(os.path.abspath(path))
+    if path.exists():
+        return None
+    while not path.parent.exists():
+        path = path.parent
+    return path
+
+
+def folder_bytes(path: Path) -> int:
+    """Bytes of the files under `path` (its footprint on disk, up to block rounding)."""
+    total = 0
+    for root, _, files in os.walk(path):
+        for f in files:
+            try:
+                total += os.lstat(os.path.join(root, f)).st_size
+            except OSError:
+                pass
+    return total
+
+
+def steps_done(run_dir: Path, prefix: str = "") -> int:
+    """Environment steps of finished training episodes in the Monitor logs whose name starts with `prefix`
+    (cheap progress for a process that is running, or was killed, without asking it)."""
+    total = 0
+    for f in (Path(run_dir) / "monitor").glob(f"{prefix}*.monitor.csv"):
+        try:
+            lines = f.read_text().splitlines()[2:]
+            total += sum(int(float(line.split(",")[1])) for line in lines if line.count(",") >= 2)
+        except (OSError, ValueError, IndexError):
+            pass
+    return total
+
+
+# --------------------------------------------------------------------------------------------------- processes
+
+
+def _proc_start_ticks(pid: int) -> int | None:
+    """Start time of process `pid` in clock ticks since boot (Linux /proc), which tells a recycled pid apart."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return int(stat.rsplit(")", 1)[1].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def this_process() -> dict:
+    """What identifies the training process in run.json: pid, host, and the process start time where known."""
+    return {"pid": os.getpid(), "host": platform.node(), "proc_start": _proc_start_ticks(os.getpid())}
+
+
+def process_alive(record: dict) -> bool | None:
+    """Whether the process recorded in run.json still runs: True / False, or None when it ran on another host
+    (its pid means nothing here). A pid that exists but started at another time is a recycled pid: not alive."""
+    pid = record.get("pid")
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    if record.get("host") not in (None, platform.node()):
+        return None
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # exists, owned by someone else
+    started = record.get("proc_start")
+    now = _proc_start_ticks(pid)
+    return not (started is not None and now is not None and now != started)
 
 
 def model_bytes(model) -> bytes:
@@ -199,10 +343,159 @@ def update_run_json(run_dir: Path, **fields) -> dict:
     for key, value in fields.items():
         if key == "command":
             doc.setdefault("commands", []).append(value)
+        elif key == "history":
+            doc.setdefault("history", []).append(value)
         else:
             doc[key] = value
     atomic_write_text(path, json.dumps(doc, indent=2))
     return doc
+
+
+# --------------------------------------------------------------------------------------------------- statistics
+
+VECNORM_FILE = "vecnormalize.npz"
+VECNORM_LEGACY_FILE = "vecnormalize.pkl"
+REPLAY_FILE = "replay_buffer.npz"
+REPLAY_LEGACY_FILE = "replay_buffer.pkl"
+
+
+def _space_arrays(prefix: str, space) -> dict:
+    from gymnasium import spaces
+
+    if not isinstance(space, spaces.Box):
+        raise RunDirError(f"normalisation statistics of a {type(space).__name__} space cannot be saved as arrays")
+    return {f"{prefix}_low": space.low, f"{prefix}_high": space.high, f"{prefix}_dtype": np.array(space.dtype.str)}
+
+
+def vecnormalize_arrays(vn) -> dict:
+    """VecNormalize statistics as plain arrays (everything its pickled form holds except the environment)."""
+    if getattr(vn, "norm_obs_keys", None):
+        raise RunDirError("normalisation of dict observations is not supported")
+    return {"obs_mean": vn.obs_rms.mean, "obs_var": vn.obs_rms.var, "obs_count": np.float64(vn.obs_rms.count),
+            "ret_mean": vn.ret_rms.mean, "ret_var": vn.ret_rms.var, "ret_count": np.float64(vn.ret_rms.count),
+            "clip_obs": np.float64(vn.clip_obs), "clip_reward": np.float64(vn.clip_reward),
+            "gamma": np.float64(vn.gamma), "epsilon": np.float64(vn.epsilon), "training": np.bool_(vn.training),
+            "norm_obs": np.bool_(vn.norm_obs), "norm_reward": np.bool_(vn.norm_reward),
+            **_space_arrays("observation_space", vn.observation_space),
+            **_space_arrays("action_space", vn.action_space)}
+
+
+def save_vecnormalize(path: Path, vn) -> None:
+    atomic_write_npz(path, vecnormalize_arrays(vn))
+
+
+def _vecnormalize_from_arrays(a) -> object:
+    """A VecNormalize built from arrays the way unpickling builds one (`__setstate__`, then `set_venv`)."""
+    from gymnasium import spaces
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    def rms(prefix):
+        r = RunningMeanStd(shape=np.shape(a[f"{prefix}_mean"]))
+        r.mean, r.var, r.count = (np.array(a[f"{prefix}_mean"], dtype=np.float64),
+                                  np.array(a[f"{prefix}_var"], dtype=np.float64), float(a[f"{prefix}_count"]))
+        return r
+
+    def box(prefix):
+        return spaces.Box(low=a[f"{prefix}_low"], high=a[f"{prefix}_high"], dtype=np.dtype(str(a[f"{prefix}_dtype"])))
+
+    state = {"obs_rms": rms("obs"), "ret_rms": rms("ret"), "clip_obs": float(a["clip_obs"]),
+             "clip_reward": float(a["clip_reward"]), "gamma": float(a["gamma"]), "epsilon": float(a["epsilon"]),
+             "training": bool(a["training"]), "norm_obs": bool(a["norm_obs"]), "norm_reward": bool(a["norm_reward"]),
+             "norm_obs_keys": None, "observation_space": box("observation_space"),
+             "action_space": box("action_space"), "num_envs": 1, "metadata": {}, "render_mode": None,
+             "old_obs": np.array([]), "old_reward": np.array([]), "_seeds": [None], "_options": [{}],
+             "reset_infos": [{}]}
+    vn = VecNormalize.__new__(VecNormalize)
+    vn.__setstate__(state)
+    return vn
+
+
+# (module, name) pairs a pickled VecNormalize refers to: the wrapper, its running statistics, the Box spaces and
+# NumPy's array/scalar/dtype/generator reconstruction. Anything else in a vecnormalize.pkl is refused unloaded.
+VECNORM_PICKLE_ALLOWED = {
+    ("stable_baselines3.common.vec_env.vec_normalize", "VecNormalize"),
+    ("stable_baselines3.common.running_mean_std", "RunningMeanStd"),
+    ("gymnasium.spaces.box", "Box"),
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.numeric", "_frombuffer"), ("numpy._core.numeric", "_frombuffer"),
+    ("numpy.random._pickle", "__generator_ctor"), ("numpy.random._pickle", "__bit_generator_ctor"),
+    ("numpy.random._pickle", "__randomstate_ctor"),
+}
+
+
+class _StatisticsUnpickler(pickle.Unpickler):
+    def find_class(self, module, name):
+        if (module, name) not in VECNORM_PICKLE_ALLOWED:
+            raise pickle.UnpicklingError(f"it refers to {module}.{name}, which normalisation statistics never hold "
+                                         f"(refused without running it)")
+        return super().find_class(module, name)
+
+
+def load_vecnormalize(path: Path, venv):
+    """Normalisation statistics from `vecnormalize.npz` (plain arrays, `allow_pickle=False`) or, for a run written
+    by an older version, `vecnormalize.pkl` through an allow-list unpickler; wrapped around `venv` if given.
+    `path` is the file or the folder that holds it."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    path = Path(path)
+    if path.is_dir() or path.name in (VECNORM_FILE, VECNORM_LEGACY_FILE):
+        folder = path if path.is_dir() else path.parent
+        path = folder / VECNORM_FILE
+        if not path.is_file() and (folder / VECNORM_LEGACY_FILE).is_file():
+            path = folder / VECNORM_LEGACY_FILE
+    if not path.is_file():
+        raise RunDirError(f"normalisation statistics not found: {path} (the run was trained with normalisation)")
+    try:
+        if path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as a:
+                vn = _vecnormalize_from_arrays(a)
+        else:
+            with path.open("rb") as fh:
+                vn = _StatisticsUnpickler(fh).load()
+            if not isinstance(vn, VecNormalize):
+                raise TypeError(f"contains a {type(vn).__name__}, not VecNormalize statistics")
+        if venv is not None:
+            vn.set_venv(venv)
+        return vn
+    except pickle.UnpicklingError as exc:
+        raise RunDirError(f"normalisation file {path} not loaded: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - zip, key, value and shape errors all mean "unreadable"
+        raise RunDirError(f"normalisation file {path} is corrupted ({type(exc).__name__}: {exc})") from None
+
+
+REPLAY_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+
+
+def save_replay_buffer(path: Path, buffer) -> None:
+    """The filled part of an SB3 ReplayBuffer as plain arrays: a buffer sized for 100,000 transitions that holds
+    20,000 costs a fifth of its pickled size, and reading it back executes nothing."""
+    n = buffer.buffer_size if buffer.full else buffer.pos
+    arrays = {name: getattr(buffer, name)[:n] for name in REPLAY_ARRAYS if getattr(buffer, name, None) is not None}
+    atomic_write_npz(path, {**arrays, "pos": np.int64(buffer.pos), "full": np.bool_(buffer.full),
+                            "buffer_size": np.int64(buffer.buffer_size), "n_envs": np.int64(buffer.n_envs)})
+
+
+def load_replay_buffer(path: Path, buffer) -> None:
+    """Fill `buffer` (the empty one a freshly loaded model built from its config) from `save_replay_buffer`."""
+    try:
+        with np.load(path, allow_pickle=False) as a:
+            if int(a["buffer_size"]) != buffer.buffer_size or int(a["n_envs"]) != buffer.n_envs:
+                raise ValueError(f"buffer of {int(a['buffer_size'])} x {int(a['n_envs'])} envs saved, the model has "
+                                 f"{buffer.buffer_size} x {buffer.n_envs}")
+            for name in REPLAY_ARRAYS:
+                target = getattr(buffer, name, None)
+                if target is None:
+                    continue
+                data = a[name]
+                if data.shape[1:] != target.shape[1:] or len(data) > len(target):
+                    raise ValueError(f"{name} of shape {data.shape}, the model's buffer is {target.shape}")
+                target[:len(data)] = data
+            buffer.pos, buffer.full = int(a["pos"]), bool(a["full"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise RunDirError(f"replay buffer {path} is corrupted ({type(exc).__name__}: {exc})") from None
 
 
 # --------------------------------------------------------------------------------------------------- checkpoints
@@ -210,6 +503,8 @@ def update_run_json(run_dir: Path, **fields) -> dict:
 
 def save_checkpoint(run_dir: Path, model, vecnorm, keep: int = 2, with_replay_buffer: bool = True) -> Path:
     """Write checkpoints/step_<N>/ completely under a temporary name, rename it, then point latest.json at it."""
+    from stable_baselines3.common.buffers import ReplayBuffer
+
     ck_root = Path(run_dir) / "checkpoints"
     ck_root.mkdir(parents=True, exist_ok=True)
     step = int(model.num_timesteps)
@@ -218,11 +513,13 @@ def save_checkpoint(run_dir: Path, model, vecnorm, keep: int = 2, with_replay_bu
     try:
         (tmp / "model.zip").write_bytes(model_bytes(model))
         if vecnorm is not None:
-            (tmp / "vecnormalize.pkl").write_bytes(pickle.dumps(vecnorm))
-        if with_replay_buffer and getattr(model, "replay_buffer", None) is not None:
-            buf = io.BytesIO()
-            model.save_replay_buffer(buf)
-            (tmp / "replay_buffer.pkl").write_bytes(buf.getvalue())
+            save_vecnormalize(tmp / VECNORM_FILE, vecnorm)
+        buffer = getattr(model, "replay_buffer", None)
+        if with_replay_buffer and buffer is not None:
+            if type(buffer) is ReplayBuffer:
+                save_replay_buffer(tmp / REPLAY_FILE, buffer)
+            else:  # other buffer classes (HER, dict observations): SB3's own pickle format
+                model.save_replay_buffer(tmp / REPLAY_LEGACY_FILE)
         if final.exists():
             shutil.rmtree(final)
         os.rename(tmp, final)
@@ -237,6 +534,12 @@ def save_checkpoint(run_dir: Path, model, vecnorm, keep: int = 2, with_replay_bu
     return final
 
 
+def checkpoints(run_dir: Path) -> list[Path]:
+    """Complete checkpoints (renamed into place, with a model file), newest first."""
+    ck_root = Path(run_dir) / "checkpoints"
+    return sorted((p for p in ck_root.glob("step_*") if (p / "model.zip").is_file()), reverse=True)
+
+
 def latest_checkpoint(run_dir: Path) -> Path | None:
     """The checkpoint latest.json names; if that is unreadable, the newest complete step_* folder."""
     ck_root = Path(run_dir) / "checkpoints"
@@ -247,8 +550,58 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
             return path
     except (OSError, ValueError, KeyError, TypeError):
         pass
-    complete = sorted(p for p in ck_root.glob("step_*") if (p / "model.zip").is_file())
-    return complete[-1] if complete else None
+    complete = checkpoints(run_dir)
+    return complete[0] if complete else None
+
+
+def load_checkpoint(checkpoint: Path, algo: str, venv, normalize: bool):
+    """Model (with its normalisation wrapper around `venv` and its replay buffer) from one checkpoint folder.
+    Raises RunDirError naming the file when any part of it does not read back."""
+    env = venv
+    if normalize:
+        env = load_vecnormalize(checkpoint, venv)
+        env.training = True
+    model = load_model(checkpoint / "model.zip", algo, env=env)
+    if getattr(model, "replay_buffer", None) is not None:
+        if (checkpoint / REPLAY_FILE).is_file():
+            load_replay_buffer(checkpoint / REPLAY_FILE, model.replay_buffer)
+        elif (checkpoint / REPLAY_LEGACY_FILE).is_file():  # SB3's pickle: trusted like model.zip itself
+            try:
+                model.load_replay_buffer(checkpoint / REPLAY_LEGACY_FILE)
+            except Exception as exc:  # noqa: BLE001
+                raise RunDirError(f"replay buffer {checkpoint / REPLAY_LEGACY_FILE} is corrupted "
+                                  f"({type(exc).__name__}: {exc})") from None
+    return model, env
+
+
+def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=print):
+    """(checkpoint, model, env) from the newest checkpoint that reads back completely; older ones are tried when
+    the newest is damaged (truncated file, missing statistics), and the fallback is reported in one line.
+    (None, None, venv) when the run has no checkpoint; RunDirError when none is intact."""
+    found = checkpoints(run_dir)
+    latest = latest_checkpoint(run_dir)
+    if latest is not None and latest in found:  # latest.json first, then the others newest first
+        found = [latest] + [c for c in found if c != latest]
+    if (Path(run_dir) / "model.zip").is_file():  # the final model last: it has no replay buffer
+        found.append(Path(run_dir))
+    damaged = []
+    for ck in found:
+        try:
+            model, env = load_checkpoint(ck, algo, venv, normalize)
+        except RunDirError as exc:
+            damaged.append(f"{ck.name}: {exc}")
+            continue
+        if damaged:
+            what = ck.name if ck != Path(run_dir) else "the run's final model.zip"
+            log(f"checkpoint {damaged[0]}; resuming from the newest intact one, {what}")
+        if getattr(model, "replay_buffer", None) is not None and not any(
+                (ck / name).is_file() for name in (REPLAY_FILE, REPLAY_LEGACY_FILE)):
+            log(f"{ck / 'model.zip'} has no replay buffer beside it: training continues with an empty one")
+        return ck, model, env
+    if damaged:
+        raise RunDirError(f"no intact checkpoint in {Path(run_dir) / 'checkpoints'}: " + "; ".join(damaged)
+                          + " (start a new run with another --out)")
+    return None, None, venv
 
 
 # --------------------------------------------------------------------------------------------------- loading
@@ -264,23 +617,6 @@ def load_model(path: Path, algo: str, env=None, device: str = "cpu"):
     except Exception as exc:  # noqa: BLE001 - zip, pickle, torch and key errors all mean "unreadable"
         raise RunDirError(f"model file {path} is corrupted or not a {algo.upper()} model "
                           f"({type(exc).__name__}: {exc})") from None
-
-
-def load_vecnormalize(path: Path, venv):
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    path = Path(path)
-    if not path.is_file():
-        raise RunDirError(f"normalisation statistics not found: {path} (the run was trained with normalisation)")
-    try:
-        vn = pickle.loads(path.read_bytes())
-        if not isinstance(vn, VecNormalize):
-            raise TypeError(f"contains a {type(vn).__name__}, not VecNormalize statistics")
-        if venv is not None:
-            vn.set_venv(venv)
-        return vn
-    except Exception as exc:  # noqa: BLE001
-        raise RunDirError(f"normalisation file {path} is corrupted ({type(exc).__name__}: {exc})") from None
 
 
 class TrainedAgent:
@@ -314,8 +650,7 @@ class TrainedAgent:
         self.model = load_model(folder / name, self.cfg.algo)
         self.vecnorm = None
         if self.cfg.normalize is not None:
-            vn_file = (self.run_dir if checkpoint == "best" else folder) / "vecnormalize.pkl"
-            self.vecnorm = load_vecnormalize(vn_file, None)
+            self.vecnorm = load_vecnormalize(self.run_dir if checkpoint == "best" else folder, None)
             self.vecnorm.training = False
         if not isinstance(self.model.observation_space, spaces.Box):
             raise RunDirError(f"{self.run_dir}: unsupported observation space {self.model.observation_space}")

@@ -7,7 +7,10 @@ The run directory layout is described in `vswrist_gym.agents.runs`; `--resume` c
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import shlex
+import shutil
 import sys
 import time
 import warnings
@@ -16,10 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, RunConfig, load_config
-from vswrist_gym.agents.runs import (RunDirError, atomic_write_bytes, check_env_id, check_env_kwargs, latest_checkpoint,
-                                     limit_threads, load_model, load_vecnormalize, make_vec_env, model_bytes,
-                                     override, read_config, save_checkpoint, update_run_json, versions,
-                                     wrap_normalize, write_config)
+from vswrist_gym.agents.runs import (VECNORM_FILE, RunDirError, atomic_write_bytes, check_env_id, check_env_kwargs,
+                                     check_new_out, check_seed, check_writable, created_root, latest_checkpoint,
+                                     limit_threads, load_newest_intact, make_vec_env, model_bytes, override,
+                                     process_alive, read_config, save_checkpoint, save_vecnormalize, steps_done,
+                                     this_process, update_run_json, versions, wrap_normalize, write_config)
+
 
 class TrainingError(RuntimeError):
     """Training stopped because the environment or a worker failed; the run dir keeps its last checkpoint."""
@@ -81,6 +86,7 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
             if self.model.num_timesteps - self.last >= self.every:
                 self.last = self.model.num_timesteps
                 save_checkpoint(run_dir, self.model, self.model.get_vec_normalize_env(), keep=self.keep)
+                update_run_json(run_dir, checkpoint_step=int(self.model.num_timesteps))
             return True
 
     eval_env = make_vec_env(cfg, 1, seed + EVAL_SEED_OFFSET, monitor_dir=None)
@@ -97,14 +103,81 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
     return [evaluator, AtomicCheckpointCallback(cfg.checkpoint_freq, cfg.keep_checkpoints)], eval_env
 
 
+RUN_DIR_MARKER = "config.yaml"  # what makes a folder a run directory (see vswrist_gym.agents.runs)
+
+
+def check_run_out(run_dir: Path, resume: bool) -> None:
+    """`--out` before anything is built: a new run needs a writable folder that is absent or empty (a non-empty
+    folder without config.yaml is someone else's); a resumed run needs a writable run directory."""
+    if resume:
+        if not run_dir.is_dir():
+            raise RunDirError(f"--out {run_dir}: run directory not found (nothing to resume)")
+        read_config(run_dir)  # a clear error when config.yaml is missing or damaged
+        check_writable(run_dir)
+        return
+    if (run_dir / RUN_DIR_MARKER).exists():
+        raise RunDirError(f"{run_dir} already holds a run; continue it with --resume or choose another --out")
+    check_new_out(run_dir, allowed=(), what=f"a run directory (one holds {RUN_DIR_MARKER}, written by vswrist train)")
+
+
+def note_ended_invocation(run_dir: Path, log) -> None:
+    """A run.json that still says "running" when a new invocation starts: the process that wrote it either runs
+    (refuse: two trainings would write the same checkpoints) or ended without a word (SIGKILL, power loss, out of
+    memory), which is recorded in run.json's history with the step it reached, and said."""
+    path = run_dir / "run.json"
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return
+    if doc.get("status") != "running":
+        return
+    proc = doc.get("process") or {}
+    alive = process_alive(proc)
+    if alive and proc.get("pid") == os.getpid():
+        alive = False  # an earlier call in this same process (vswrist compare --jobs 1) ended abnormally
+    if alive:
+        raise RunDirError(f"{run_dir} is being trained by process {proc.get('pid')} on this machine; stop it "
+                          f"(Ctrl-C saves a checkpoint) before resuming")
+    last = latest_checkpoint(run_dir)
+    prefix = doc.get("monitor_prefix")
+    reached = int(doc.get("start_step", 0)) + (steps_done(run_dir, prefix) if prefix else 0)
+    entry = {"status": "killed", "pid": proc.get("pid"), "host": proc.get("host"),
+             "reached_step": max(reached, int(doc.get("checkpoint_step", 0))),
+             "checkpoint_step": int(doc.get("checkpoint_step", 0)), "detected": time.time()}
+    why = ("ended without a word (killed)" if alive is False else
+           f"ran on host {proc.get('host')}, which this machine cannot check; taken as ended without a word")
+    update_run_json(run_dir, status="killed", history=entry)
+    log(f"{run_dir}: the previous training (process {proc.get('pid')}) {why} after about {entry['reached_step']} "
+        f"steps (finished episodes); its last checkpoint is {last.name if last else 'none'}")
+
+
+def _remove_half_made(run_dir: Path, root: Path | None) -> None:
+    """Undo a failed start of a new run: remove the folders this invocation created, or empty `run_dir` when it
+    existed (empty) before."""
+    if root is not None:
+        shutil.rmtree(root, ignore_errors=True)
+    elif run_dir.is_dir():
+        for child in run_dir.iterdir():
+            if child.is_dir() and not child.is_symlink():
+                shutil.rmtree(child, ignore_errors=True)
+            else:
+                child.unlink(missing_ok=True)
+
+
 def train(task: str, algo: str, out: str | Path, config: str | Path | None = None, timesteps: int | None = None,
           seed: int = 0, n_envs: int | None = None, resume: bool = False, progress: bool = True,
           argv: list[str] | None = None, torch_threads: int = 1, log=print) -> Path:
-    """Train (or resume) one run; returns the run directory. Raises ConfigError / RunDirError on bad input."""
+    """Train (or resume) one run; returns the run directory. Raises ConfigError / RunDirError on bad input,
+    before anything is written; a new run that fails to start leaves nothing behind."""
     run_dir = Path(out)
+    seed = check_seed(seed)
+    if algo not in ALGO_NAMES:
+        raise ConfigError(f"algo must be one of {', '.join(ALGO_NAMES)}, got {algo!r}")
     env_id = task_id(task)
     command = "vswrist train " + shlex.join(argv) if argv is not None else None
+    check_run_out(run_dir, resume)
     limit_threads(torch_threads)
+    created = None
     if resume:
         if config is not None:
             raise ConfigError("--config cannot be combined with --resume: a resumed run keeps its config.yaml")
@@ -113,31 +186,24 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             raise RunDirError(f"{run_dir} holds a {cfg.algo.upper()} run on {cfg.env_id}, "
                               f"not {algo.upper()} on {env_id}")
         cfg = override(cfg, n_timesteps=timesteps, n_envs=n_envs)
-        checkpoint = latest_checkpoint(run_dir)
+        note_ended_invocation(run_dir, log)
     else:
-        if (run_dir / "config.yaml").exists():
-            raise RunDirError(f"{run_dir} already holds a run; continue it with --resume or choose another --out")
         cfg = override(load_config(algo, env_id, config), n_timesteps=timesteps, n_envs=n_envs)
-        checkpoint = None
         check_env_kwargs(cfg.env_id, cfg.env_kwargs)
-        run_dir.mkdir(parents=True, exist_ok=True)
-    write_config(run_dir, cfg, seed)
-    update_run_json(run_dir, seed=seed, versions=versions(), status="running",
-                    **({"command": command} if command else {}))
-
-    venv = make_vec_env(cfg, cfg.n_envs, seed, monitor_dir=run_dir / "monitor",
-                        prefix=f"train_{int(time.time())}")
-    model = None
+        created = created_root(run_dir)
+    prefix = f"train_{int(time.time())}"
+    venv = model = checkpoint = None
     try:
-        if checkpoint is not None:
-            if cfg.normalize is not None:
-                venv = load_vecnormalize(checkpoint / "vecnormalize.pkl", venv)
-                venv.training = True
-            model = load_model(checkpoint / "model.zip", algo, env=venv)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        if not resume:
+            write_config(run_dir, cfg, seed)  # first: a folder this command writes into is recognisably a run
+        venv = make_vec_env(cfg, cfg.n_envs, seed, monitor_dir=run_dir / "monitor", prefix=prefix)
+        if resume:
+            checkpoint, model, venv = load_newest_intact(run_dir, algo, venv, cfg.normalize is not None, log=log)
+        if model is not None:
             model.tensorboard_log = str(run_dir / "tb")
-            if (checkpoint / "replay_buffer.pkl").is_file():
-                model.load_replay_buffer(checkpoint / "replay_buffer.pkl")
-            log(f"resuming {run_dir} from {checkpoint.name} ({model.num_timesteps} of {cfg.n_timesteps} steps)")
+            where = checkpoint.name if checkpoint != run_dir else "its final model.zip"
+            log(f"resuming {run_dir} from {where} ({model.num_timesteps} of {cfg.n_timesteps} steps)")
         else:
             if resume:
                 log(f"no checkpoint in {run_dir}: starting from scratch")
@@ -147,6 +213,24 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             model = algo_class(algo)(cfg.policy, venv, seed=seed, tensorboard_log=str(run_dir / "tb"),
                                      policy_kwargs=cfg.policy_kwargs or None, device="cpu", verbose=0,
                                      **cfg.algo_kwargs)
+        if resume:
+            write_config(run_dir, cfg, seed)  # the new budget, once the run is known to continue
+        update_run_json(run_dir, seed=seed, versions=versions(), status="running", process=this_process(),
+                        start_step=int(model.num_timesteps), monitor_prefix=prefix,
+                        **({"command": command} if command else {}))
+    except BaseException:
+        if venv is not None:
+            try:
+                venv.close()
+            except (EOFError, OSError):
+                pass
+        if resume:  # the run stays as it was: only this invocation's (empty) episode logs go
+            for f in (run_dir / "monitor").glob(f"{prefix}_*"):
+                f.unlink(missing_ok=True)
+        else:
+            _remove_half_made(run_dir, created)
+        raise
+    try:
         remaining = cfg.n_timesteps - model.num_timesteps
         if remaining <= 0:
             log(f"{run_dir}: already trained for {model.num_timesteps} steps (>= {cfg.n_timesteps})")
@@ -160,12 +244,17 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
                             reset_num_timesteps=checkpoint is None, tb_log_name=algo)
             except KeyboardInterrupt:
                 save_checkpoint(run_dir, model, model.get_vec_normalize_env(), keep=cfg.keep_checkpoints)
-                update_run_json(run_dir, status="interrupted", num_timesteps=int(model.num_timesteps))
+                update_run_json(run_dir, status="interrupted", num_timesteps=int(model.num_timesteps),
+                                checkpoint_step=int(model.num_timesteps),
+                                history={"status": "interrupted", "reached_step": int(model.num_timesteps),
+                                         "time": time.time()})
                 log(f"interrupted at {model.num_timesteps} steps; checkpoint saved, continue with --resume")
                 raise
             except Exception as exc:  # noqa: BLE001 - an environment or worker failure: keep what was learnt
                 update_run_json(run_dir, status="failed", error=f"{type(exc).__name__}: {exc}",
-                                num_timesteps=int(model.num_timesteps))
+                                num_timesteps=int(model.num_timesteps),
+                                history={"status": "failed", "reached_step": int(model.num_timesteps),
+                                         "time": time.time()})
                 latest = latest_checkpoint(run_dir)
                 what = (f"{type(exc).__name__}: {exc}" if not isinstance(exc, (EOFError, ConnectionError))
                         else "a SubprocVecEnv worker died (its traceback is printed above)")
@@ -182,10 +271,10 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
         atomic_write_bytes(run_dir / "model.zip", model_bytes(model))
         vn = model.get_vec_normalize_env()
         if vn is not None:
-            import pickle
-
-            atomic_write_bytes(run_dir / "vecnormalize.pkl", pickle.dumps(vn))
-        update_run_json(run_dir, status="finished", num_timesteps=int(model.num_timesteps))
+            save_vecnormalize(run_dir / VECNORM_FILE, vn)
+        update_run_json(run_dir, status="finished", num_timesteps=int(model.num_timesteps),
+                        checkpoint_step=int(model.num_timesteps),
+                        history={"status": "finished", "reached_step": int(model.num_timesteps), "time": time.time()})
     finally:
         try:
             venv.close()
@@ -228,6 +317,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vswrist train: error: {exc}", file=sys.stderr)
         return 2
     except TrainingError as exc:
+        print(f"vswrist train: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # the disk filled or a folder became unwritable while training
         print(f"vswrist train: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
