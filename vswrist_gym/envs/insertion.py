@@ -44,8 +44,8 @@ from .drill import FINGER_END
 WALL = 0.008      # m, half thickness of the walls around the hole
 PLATE = 0.02      # m, half extent of the walls beyond the hole
 SEAT_SLACK = 0.002  # m, how far past the hole bottom a seated pin's end may read: the soft contact and joint
-                   # limit let a pin pressed on the bottom sink 0.8 mm at most (100 episodes of each agent of
-                   # probe --success, 2026-12-02); random actions drive it 2 mm and more past, beside or under
+                   # limit let a pin pressed on the bottom sink 0.8 mm at most (100 episodes of each of the
+                   # probe's schedules, 2026-12-02); random actions drive it 2 mm and more past, beside or under
 
 
 class InsertionEnv(VSWristEnv):
