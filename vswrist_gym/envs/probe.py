@@ -14,6 +14,13 @@ The rules (observation only):
 * Impact: stiff in free motion, soft from the first sign of contact until ``IMPACT_SOFT_S`` after the last;
 * Insertion: soft, except stiff for ``PUSH_S`` from the first time the fit resists (bottom force above
   ``PUSH_ON``): stiffness only while pushing the pin past the fit.
+
+``--success`` prints instead, per task, the success rate (and mean return) of agents that should not succeed
+next to those that may: uniform random and bang-bang (+-1) actions in the default ``posture_stiffness`` mode
+and in the ``residual`` mode, the zero residual action (the analytic baseline at the task's
+``residual.stiffness_nominal``), every constant stiffness, the rule and the oracle. A success criterion that
+means what its task means gives the flailing agents no more success than the baseline
+(``tests/test_success.py``).
 """
 
 from __future__ import annotations
@@ -120,9 +127,19 @@ def constant_policy(env, s: float):
     return lambda obs: u.reference_to_action(np.asarray(obs)[sl], s)
 
 
-def evaluate(env, policy_factory, seeds, terms: dict | None = None, returns: list | None = None) -> tuple[float, float]:
+def random_policy(env, rng: np.random.Generator, bang_bang: bool = False):
+    """Uniform random actions in [-1, 1] (``bang_bang``: each entry -1 or +1 with equal chance), drawn from ``rng``."""
+    shape = env.action_space.shape
+    if bang_bang:
+        return lambda obs: np.where(rng.random(shape) < 0.5, -1.0, 1.0).astype(np.float32)
+    return lambda obs: rng.uniform(-1.0, 1.0, shape).astype(np.float32)
+
+
+def evaluate(env, policy_factory, seeds, terms: dict | None = None, returns: list | None = None,
+             on_end=None) -> tuple[float, float]:
     """Mean return and success rate over ``seeds``; if ``terms`` is a dict, it receives the mean episode sum of
-    every weighted reward term (``reward_<name>`` of ``info``); if ``returns`` is a list, each episode's return."""
+    every weighted reward term (``reward_<name>`` of ``info``); if ``returns`` is a list, each episode's return;
+    ``on_end(env, info)`` is called at the end of each episode."""
     totals, successes, sums = [], [], {}
     for seed in seeds:
         policy = policy_factory()
@@ -137,6 +154,8 @@ def evaluate(env, policy_factory, seeds, terms: dict | None = None, returns: lis
                     sums[k[7:]] = sums.get(k[7:], 0.0) + v
         totals.append(total)
         successes.append(info["is_success"])
+        if on_end is not None:
+            on_end(env, info)
     if terms is not None:
         terms.update({k: v / len(totals) for k, v in sums.items()})
     if returns is not None:
@@ -175,6 +194,85 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
     return out
 
 
+def success_probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None) -> dict:
+    """Success rate and mean return, {agent: (rate, return)}, of flailing agents, the analytic baseline, every
+    constant stiffness, the rule and the oracle on episodes ``seed0 .. seed0 + episodes - 1`` (the random agents
+    draw their actions from ``numpy.random.default_rng(seed0)``)."""
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    config = dict(config or {})
+    env = gym.make(f"VSWrist/{task}-v0", config=config)
+    res = gym.make(f"VSWrist/{task}-v0", config={**config, "action_mode": "residual"})
+    seeds = range(seed0, seed0 + episodes)
+    out, insertion = {}, {}
+
+    def run(label, e, factory):
+        if task != "Insertion":
+            out[label] = evaluate(e, factory, seeds)[::-1]
+            return
+        # Insertion: per episode, whether the pin's end reached the success depth at any step (what a depth-only
+        # criterion counts), whether it is seated at the end, and the episode's peak wall force (N)
+        u, rows = e.unwrapped, insertion.setdefault(label, [])
+
+        def tracked():
+            policy, deepest = factory(), [0.0]
+            rows.append(deepest)
+
+            def act(obs):
+                deepest[0] = max(deepest[0], u.pin_depth())
+                return policy(obs)
+            return act
+
+        def end(env_, info):
+            deepest = max(rows[-1][0], u.pin_depth())
+            rows[-1] = (deepest >= u.tp["success_depth"] * u.tp["hole_depth"], u.seated(), info["peak_contact_force"])
+        out[label] = evaluate(e, tracked, seeds, on_end=end)[::-1]
+
+    for label, e, bang in (("random", env, False), ("bang-bang", env, True),
+                           ("random (residual)", res, False), ("bang-bang (residual)", res, True)):
+        rng = np.random.default_rng(seed0)
+        run(label, e, lambda e=e, b=bang: random_policy(e, rng, b))
+    zero = np.zeros(res.action_space.shape, dtype=np.float32)
+    run("zero (residual) = baseline", res, lambda: (lambda obs: zero))
+    for c in CONSTANT_COMMANDS:
+        run(f"s={c:+.1f}", env, lambda c=c: constant_policy(env, c))
+    run("rule", env, lambda: adaptive_policy(env))
+    run("oracle", env, lambda: oracle_policy(env))
+    env.close()
+    res.close()
+    if insertion:
+        out["_insertion"] = insertion
+    return out
+
+
+def print_success(tasks, episodes: int, seed0: int, config: dict) -> None:
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    print(f"success rate (mean return) over {episodes} episodes (seeds from {seed0}); the baseline is the zero "
+          "residual action, the analytic agent at the task's residual.stiffness_nominal")
+    results = {t: success_probe(t, episodes, seed0=seed0, config=config) for t in tasks}
+    print(f"{'agent':<27}" + "".join(f"{t:>19}" for t in tasks))
+    for agent in [a for a in next(iter(results.values())) if not a.startswith("_")]:
+        print(f"{agent:<27}" + "".join(f"{results[t][agent][0]:>8.2f} ({results[t][agent][1]:>7.1f})" for t in tasks))
+    if "Insertion" in results:
+        print("\nInsertion, per agent: episodes whose pin reached the success depth at some step (a depth-only "
+              "criterion's successes), episodes seated at the end, and the peak wall force (N) of the seated ones")
+        print(f"{'agent':<27}{'reached':>9}{'seated':>8}{'wall force min':>16}{'max':>10}")
+        for agent, rows in results["Insertion"]["_insertion"].items():
+            peaks = [p for _, seated, p in rows if seated]
+            lo, hi = (f"{min(peaks):.1f}", f"{max(peaks):.1f}") if peaks else ("-", "-")
+            print(f"{agent:<27}{sum(r for r, _, _ in rows):>5}/{len(rows):<3}{sum(s for _, s, _ in rows):>4}/"
+                  f"{len(rows):<3}{lo:>16}{hi:>10}")
+    for t in tasks:
+        env = gym.make(f"VSWrist/{t}-v0", config=config)
+        print(f"{t}: {env.unwrapped.success_description()}; baseline s={env.unwrapped.cfg['residual']['stiffness_nominal']:+.1f}")
+        env.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=10)
@@ -183,8 +281,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--energy-weight", type=float, default=None, help="override reward.energy")
     ap.add_argument("--terms", action="store_true",
                     help="also print, per task, each agent's mean episode sum of every weighted reward term")
+    ap.add_argument("--success", action="store_true",
+                    help="print instead each task's success rate for random, bang-bang and zero residual actions, "
+                         "every constant stiffness, the rule and the oracle")
     args = ap.parse_args(argv)
     config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
+    if args.success:
+        print_success(args.tasks, args.episodes, args.seed0, config)
+        return 0
     cols = "".join(f"{'s=' + format(s, '+.1f'):>16}" for s in CONSTANT_COMMANDS)
     print(f"mean return (success rate) over {args.episodes} episodes (seeds from {args.seed0}), reference agent")
     print(f"{'task':<11}{cols}{'rule':>16}{'oracle':>16}{'rule-best':>10}{'oracle-best':>12}")
