@@ -22,8 +22,7 @@ PIPELINE_TASK = "Pendulum-v1"  # a standard Gymnasium task: tests the pipeline w
 
 def vswrist(*args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
     """Run `vswrist ...` as a user would (a fresh interpreter, through the CLI entry point)."""
-    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning",
-           "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning"}  # MUJOCO_GL: as conftest's import set it
     return subprocess.run([sys.executable, "-m", "vswrist_gym.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=cwd, timeout=timeout, env=env)
 
@@ -326,7 +325,7 @@ def test_bad_env_kwargs_are_a_clear_error_before_anything_is_written(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
-def test_evaluate_writes_a_video(tmp_path):
+def test_evaluate_writes_a_video(tmp_path, headless_gl):
     video = tmp_path / "episode.mp4"
     res = vswrist("evaluate", "--task", TASK, "--agent", "analytic:0", "--episodes", "1", "--seeds", "0",
                   "--out", tmp_path / "e", "--video", video)

@@ -3,7 +3,8 @@
 Prints, per physics substep: the bare ``mj_step`` (no springs, no motor low-pass: the callbacks removed), the
 full substep (sinh springs + motor dynamics + ``mj_step``) on each implementation, and their ratio; the
 substeps per second and the real-time factor of the default path. ``--sweep`` adds the timestep trade-off:
-static-stiffness error against the analytic model, worst loop-closure error under random references, speed.
+static-stiffness error against the analytic model, speed, and the loop-closure error under random references:
+worst, median and least over seeds, and how it scales with the step.
 """
 
 from __future__ import annotations
@@ -169,22 +170,31 @@ def stiffness_error(params, u, frac: float) -> tuple[float, float]:
             float(np.linalg.norm(S_paper - S) / np.linalg.norm(S)))
 
 
-SEEDS = (0, 1, 2)  # random-target sequences of the closure sweep
+SEEDS = tuple(range(20))  # random-target sequences of the closure sweep (seed 0: the targets of tests/test_sim.py)
+PERTURBATIONS = 10  # runs of seed 0 with the last digits of the preload changed
+SWEEP_TIMESTEPS = (0.00025, 0.0005, 0.001, 0.002)  # s; the constraint time constant follows (2 substeps)
 
 
-def closure_under_random_references(params, posture_rate: float | None, seconds: float = 10.0,
-                                    seed: int = 1) -> tuple[float, float]:
-    """Worst loop-closure error and fastest motor (rad/s) over random posture targets (new one every 0.5 s)
-    at the largest preload, gravity on. ``posture_rate`` (rad/s) limits how fast the commanded posture
-    moves; None: jumps. The closure is checked after every physics substep, motor speeds at every control
-    period."""
+def random_reference_run(params, posture_rate: float | None, seconds: float = 10.0, seed: int = 0,
+                         preload_scale: float = 1.0) -> dict:
+    """Random posture targets (RUD, FE across the range of motion, PS in [-2, 2] rad; a new one every 0.5 s) at
+    the largest preload ``lambda_range(u)[1]``, gravity on. ``posture_rate`` (rad/s) limits how fast the
+    commanded posture (all three angles) moves towards the target, as a controller would command it; None:
+    the references jump to it (the motors saturate). ``preload_scale`` multiplies the preload (1 + 1e-14: a
+    change in the last digits, as another CPU's rounding makes).
+
+    Returns the worst loop-closure error after any physics substep (``closure``, m or rad), the largest motor
+    torque over its limit (``torque``) and the fastest motor (``speed``, rad/s) at the 20 ms control periods,
+    and MuJoCo's warnings (``warnings``). Raises if the state ever turns non-finite."""
     sim = WristSim(params)
+    p = sim.params
     substeps = int(round(0.02 / sim.timestep))
+    tl = np.array([p.motor.torque_limit] * 3 + [p.motor.ps_torque_limit])
     rng = np.random.default_rng(seed)
     u = np.zeros(2)
-    sim.reset(u=u, lam=lambda_range(u, params)[1])
-    worst, fastest, target, ps_target, ps = 0.0, 0.0, u, 0.0, 0.0
-    for k in range(int(seconds / 0.02)):
+    sim.reset(u=u, lam=preload_scale * lambda_range(u, p)[1])
+    closure, torque, speed_max, target, ps_target, ps = 0.0, 0.0, 0.0, u, 0.0, 0.0
+    for k in range(int(round(seconds / 0.02))):
         if k % 25 == 0:
             target, ps_target = rng.uniform(sim.kin.u_min, sim.kin.u_max), rng.uniform(-2.0, 2.0)
         if posture_rate is None:
@@ -193,18 +203,27 @@ def closure_under_random_references(params, posture_rate: float | None, seconds:
             step = target - u
             u = u + step * min(1.0, posture_rate * 0.02 / max(float(np.linalg.norm(step)), 1e-12))
             ps += float(np.clip(ps_target - ps, -posture_rate * 0.02, posture_rate * 0.02))
-        sim.set_motor_references(np.append(motor_references(u, lambda_range(u, params)[1], params), ps))
-        for _ in range(substeps):
+        sim.set_motor_references(np.append(motor_references(u, preload_scale * lambda_range(u, p)[1], p), ps))
+        for _ in range(substeps):  # after every substep: the peaks of a jump last a few milliseconds
             sim.step(sim.timestep)
-            worst = max(worst, sim.loop_closure_error())
-        fastest = max(fastest, float(np.abs(sim.motor_velocities()).max()))
-    return worst, fastest
+            closure = max(closure, sim.loop_closure_error())
+        torque = max(torque, float(np.max(np.abs(sim.motor_torques()) / tl)))
+        speed_max = max(speed_max, float(np.abs(sim.motor_velocities()).max()))
+        d = sim.data
+        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel)) and np.all(np.isfinite(d.act))):
+            raise FloatingPointError(f"non-finite state at t = {sim.time:.3f} s (seed {seed})")
+    return {"closure": closure, "torque": torque, "speed": speed_max, "warnings": sim.warnings()}
 
 
-def _worst_over_seeds(params, posture_rate: float | None) -> tuple[float, float]:
-    """closure_under_random_references, worst of SEEDS (seed 0: the same targets as tests/test_sim.py)."""
-    runs = [closure_under_random_references(params, posture_rate, seed=seed) for seed in SEEDS]
-    return max(r[0] for r in runs), max(r[1] for r in runs)
+def closure_spread(params, posture_rate: float | None, seeds=SEEDS) -> dict:
+    """random_reference_run over ``seeds``: the closure of each seed, its worst (and which seed), median and
+    least, and the fastest motor of all. The spread over seeds stands in for the spread between machines: the
+    motion amplifies rounding differences until the peaks fall elsewhere, as a new seed's do."""
+    runs = [random_reference_run(params, posture_rate, seed=s) for s in seeds]
+    c = np.array([r["closure"] for r in runs])
+    return {"closures": c, "worst": float(c.max()), "worst_seed": seeds[int(c.argmax())],
+            "median": float(np.median(c)), "least": float(c.min()),
+            "speed": max(r["speed"] for r in runs), "warnings": sum(bool(r["warnings"]) for r in runs)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -216,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--control-dt", type=float, default=0.02, help="control period of step() calls, s")
     parser.add_argument("--no-python", action="store_true", help="skip the slow Python reference paths")
     parser.add_argument("--sweep", action="store_true", help="also sweep the timestep: accuracy against speed")
+    parser.add_argument("--seeds", type=int, default=len(SEEDS),
+                        help=f"random-target seeds of the sweep's loop-closure runs (default {len(SEEDS)})")
     parser.add_argument("--solvers", action="store_true",
                         help="also time the full substep under other solvers, Jacobians and integrators")
     args = parser.parse_args(argv)
@@ -266,21 +287,46 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  [{preset}] {label:<36} {min(times) * 1e6:7.2f} us  ratio {min(times) / min(base):.2f}")
         print()
     if args.sweep:
+        seeds = tuple(range(args.seeds))
         print("timestep sweep (constraint time constant = 2 substeps): stiffness error vs analytic (max over 3 cases),")
-        print("paper-formula error, worst loop closure in 10 s of random posture references at the largest preload")
-        print(f"(worst of seeds {', '.join(map(str, SEEDS))}; commanded posture moving at <= 3 rad/s; "
-              "in brackets: jumping), speed")
+        print("paper-formula error, speed")
+        spreads = {}
         for preset in presets:
             base = load_params(preset)
-            for dt in (0.00025, 0.0005, 0.001, 0.002):
+            for dt in SWEEP_TIMESTEPS:
                 p = base.replace(simulation={"timestep": dt, "constraint_timeconst": 2 * dt})
                 errs = [stiffness_error(p, u, f) for u, f in (((0.0, 0.0), 0.9), ((0.5, 0.4), -0.8), ((-0.6, -0.5), 0.3))]
-                closure, speed_rate = _worst_over_seeds(p, 3.0)
-                closure_jumps, speed_jumps = _worst_over_seeds(p, None)
                 sim = WristSim(p)
                 per = _time_full(sim, _reference_schedule(sim, 64), 0.02, 2.0)
                 print(f"  [{preset}] dt {dt * 1e3:5.2f} ms  stiffness err {max(e for e, _ in errs):6.2%}  "
                       f"paper formula {min(e for _, e in errs):5.1%}-{max(e for _, e in errs):5.1%}  "
-                      f"closure {closure:.1e} (jumps {closure_jumps:.1e})  fastest motor {speed_rate:4.1f} "
-                      f"({speed_jumps:4.1f}) rad/s  {1 / per:7.0f} substeps/s  RTF {dt / per:4.0f}x")
+                      f"{1 / per:7.0f} substeps/s  RTF {dt / per:4.0f}x", flush=True)
+                spreads[preset, dt] = {mode: closure_spread(p, rate, seeds)
+                                       for mode, rate in (("commanded", 3.0), ("jumps", None))}
+        print(f"\nloop closure (m or rad): worst after any substep of 10 s of random targets at the largest preload,")
+        print(f"over seeds 0-{seeds[-1]}: worst (its seed) / median / least; commanded posture moving at <= 3 rad/s, "
+              "and reference jumps")
+        for preset in presets:
+            for dt in SWEEP_TIMESTEPS:
+                cells = []
+                for mode in ("commanded", "jumps"):
+                    s = spreads[preset, dt][mode]
+                    cells.append(f"{mode} {s['worst']:.2e} (seed {s['worst_seed']:2d}) / {s['median']:.2e} / "
+                                 f"{s['least']:.2e}, fastest motor {s['speed']:4.1f} rad/s"
+                                 + (f", {s['warnings']} runs with warnings" if s["warnings"] else ""))
+                print(f"  [{preset}] dt {dt * 1e3:5.2f} ms  " + "  |  ".join(cells))
+            for mode in ("commanded", "jumps"):  # opening ~ dt^k: k from the medians of successive steps
+                med = [spreads[preset, dt][mode]["median"] for dt in SWEEP_TIMESTEPS]
+                ks = [np.log(b / a) / np.log(t2 / t1) for a, b, t1, t2 in
+                      zip(med, med[1:], SWEEP_TIMESTEPS, SWEEP_TIMESTEPS[1:])]
+                print(f"  [{preset}] {mode}: median opening ~ dt^k, k = "
+                      + ", ".join(f"{k:.1f} ({t1 * 1e3:g}->{t2 * 1e3:g} ms)" for k, t1, t2 in
+                                  zip(ks, SWEEP_TIMESTEPS, SWEEP_TIMESTEPS[1:])))
+        print(f"\nseed 0 at the preset's step with the preload scaled by 1 + k 1e-14 (k = 0-{PERTURBATIONS - 1}; "
+              "rounding as another CPU's): worst / median / least closure")
+        for preset in presets:
+            for mode, rate in (("commanded", 3.0), ("jumps", None)):
+                c = [random_reference_run(load_params(preset), rate, seed=0, preload_scale=1.0 + k * 1e-14)["closure"]
+                     for k in range(PERTURBATIONS)]
+                print(f"  [{preset}] {mode:<9} {max(c):.2e} / {np.median(c):.2e} / {min(c):.2e}", flush=True)
     return 0
