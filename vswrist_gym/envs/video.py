@@ -9,7 +9,8 @@ Agents:
 * a path to a stable-baselines3 ``.zip`` (``--algo ppo|sac``): its deterministic policy (raw observations; a
   model trained with observation normalisation needs its statistics, which this command does not load).
 
-Rendering is headless (``MUJOCO_GL=egl`` unless set otherwise).
+Rendering follows the package's rule (``vswrist_gym/__init__.py``): EGL on Linux without a display, unless
+``MUJOCO_GL`` is set.
 """
 
 from __future__ import annotations
@@ -64,8 +65,6 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--stiffness must be in [-1, 1]")
     if not args.out.endswith(".mp4"):
         ap.error("--out must name an .mp4 file")
-
-    os.environ.setdefault("MUJOCO_GL", "egl")
     import gymnasium as gym
     import imageio
 
