@@ -91,8 +91,8 @@ def test_rss_follows_a_large_allocation():
 
 @pytest.mark.parametrize("kwargs, field", [({"steps": 0}, "steps"), ({"steps": 1.5}, "steps"),
                                            ({"tasks": ["Nope"]}, "tasks"), ({"tasks": []}, "tasks"),
-                                           ({"warmup": 1.0}, "warmup"), ({"rebuild_fraction": -0.1},
-                                                                         "rebuild_fraction"),
+                                           ({"warmup": 1.0}, "warmup"), ({"rebuild_fraction": -0.1}, "rebuild_fraction"),
+                                           ({"rebuild_fraction": 1.5}, "rebuild_fraction"),
                                            ({"steps": 15}, "too few")])
 def test_bad_soak_settings_fail_before_any_environment_is_built(kwargs, field, monkeypatch):
     monkeypatch.setattr(soak, "_build", lambda cell: pytest.fail("an environment was built"))
@@ -104,3 +104,12 @@ def test_cli_rejects_bad_settings_in_one_line(capsys):
     assert soak.main(["--steps", "0", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("soak: error: steps must be") and "\n" not in err
+
+
+@pytest.mark.parametrize("fraction, settings", [(0.0, [False]), (0.25, [False, True]), (1.0, [True])])
+def test_the_rebuild_fraction_chooses_the_settings_and_keeps_the_even_split(fraction, settings):
+    cells = soak._plan(1001, TASKS, fraction, seed=0)
+    assert sorted({c.rebuild for c in cells}) == settings
+    assert sum(c.budget for c in cells) == 1001
+    rebuilt = sum(c.budget for c in cells if c.rebuild)
+    assert abs(rebuilt - fraction * 1001) <= len(TASKS) * len(soak.AGENTS)  # rounding, at most 1 per pair

@@ -130,12 +130,12 @@ def _check_args(steps, tasks, warmup, rebuild_fraction) -> None:
         raise ValueError(f"tasks must be a non-empty list of {list(TASKS)}, got {list(tasks)!r}")
     if not (isinstance(warmup, (int, float)) and 0.0 < warmup < 1.0):
         raise ValueError(f"warmup must be a fraction of the steps in (0, 1), got {warmup!r}")
-    if not (isinstance(rebuild_fraction, (int, float)) and 0.0 <= rebuild_fraction < 1.0):
-        raise ValueError(f"rebuild_fraction must be in [0, 1), got {rebuild_fraction!r}")
-    per_pair = steps // (len(tasks) * len(AGENTS))
-    if per_pair < (2 if rebuild_fraction > 0 else 1):
+    if not (isinstance(rebuild_fraction, (int, float)) and 0.0 <= rebuild_fraction <= 1.0):
+        raise ValueError(f"rebuild_fraction must be in [0, 1], got {rebuild_fraction!r}")
+    both = 0.0 < rebuild_fraction < 1.0
+    if steps // (len(tasks) * len(AGENTS)) < (2 if both else 1):
         raise ValueError(f"steps = {steps} is too few for {len(tasks)} task(s) x {len(AGENTS)} agents"
-                         f"{' x 2 settings' if rebuild_fraction > 0 else ''}")
+                         f"{' x 2 settings' if both else ''}")
 
 
 def _plan(steps: int, tasks, rebuild_fraction: float, seed: int) -> list[Cell]:
@@ -147,7 +147,7 @@ def _plan(steps: int, tasks, rebuild_fraction: float, seed: int) -> list[Cell]:
     for i, (task, agent) in enumerate(pairs):
         share = base + (1 if i < extra else 0)
         rebuild = int(round(share * rebuild_fraction))
-        if rebuild_fraction > 0:
+        if 0.0 < rebuild_fraction < 1.0:  # both settings run, however few the steps
             rebuild = min(max(rebuild, 1), share - 1)
         for flag, budget in ((False, share - rebuild), (True, rebuild)):
             if budget > 0:
@@ -292,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"fraction of the steps before the reference memory sample (default {WARMUP})")
     p.add_argument("--rebuild-fraction", type=float, default=REBUILD_FRACTION,
                    help="share of each task and agent's steps with every randomisation term on (model rebuilt "
-                        f"at each reset; default {REBUILD_FRACTION})")
+                        f"at each reset; default {REBUILD_FRACTION}; 1: the rebuild path alone)")
     p.add_argument("--max-growth", type=float, default=MAX_GROWTH,
                    help=f"largest memory growth from warm-up to end that passes, in %% (default {MAX_GROWTH:g})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
