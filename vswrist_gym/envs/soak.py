@@ -11,9 +11,13 @@ measured after the warm-up covers all of them.
 
 It records:
 
-* resident memory (RSS, ``/proc/self/statm``) after a garbage collection, after the warm-up (``--warmup``,
-  default the first 5 % of the steps) and every 5 % from there on; the growth from warm-up to the end, in %,
-  is the leak figure (the warm-up absorbs allocator pools, caches and first-use imports);
+* resident memory (RSS, ``/proc/self/statm``) after the warm-up (``--warmup``, default the first 5 % of the
+  steps) and every 5 % from there on, each time after a garbage collection and glibc's ``malloc_trim(0)``, so
+  that it counts memory in use: freed blocks that the allocator keeps (heap fragmentation, which model
+  rebuilds cause: glibc serves their large buffers from the heap once its dynamic mmap threshold has risen)
+  are returned to the system first (``--no-trim`` leaves that out). The growth from warm-up to the end, in %,
+  is the leak figure (the warm-up absorbs allocator pools, caches and first-use imports); the peak RSS of the
+  whole run is printed too;
 * Python warnings (every warning, recorded with ``simplefilter("always")`` so that repeats count too), and
   MuJoCo's warning counters (``WristSim.warnings()``, read at each episode end, before the reset clears them);
 * divergences (``info["simulation_error"]``: the episode ends with the termination penalty) and observations
@@ -60,9 +64,7 @@ def rss_bytes() -> int:
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError, IndexError):
-        import resource
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return peak if sys.platform == "darwin" else peak * 1024  # bytes on macOS, KiB on Linux
+        return peak_rss_bytes()
 
 
 @dataclass
@@ -94,6 +96,8 @@ class SoakResult:
     rss_warmup: int            # bytes, after the warm-up
     rss_end: int               # bytes, at the end
     rss_samples: list          # (steps so far, bytes) after the warm-up
+    rss_peak: int              # bytes, the largest resident set of the process (without trims)
+    trimmed: bool              # samples taken after malloc_trim
     python_warnings: list      # "Category: message" of every warning, in order
     cells: list
 
@@ -201,14 +205,33 @@ def _episode(cell: Cell, first: bool) -> int:
     return n
 
 
-def _rss_now() -> int:
+def _malloc_trim() -> None:
+    """Return the C heap's free pages to the system (glibc); nothing elsewhere."""
+    try:
+        import ctypes
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc (musl, macOS, Windows): RSS then includes freed blocks
+        pass
+
+
+def _rss_now(trim: bool = True) -> int:
     gc.collect()
+    if trim:
+        _malloc_trim()
     return rss_bytes()
 
 
+def peak_rss_bytes() -> int:
+    """The largest resident set of this process so far (bytes)."""
+    import resource
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak if sys.platform == "darwin" else peak * 1024  # bytes on macOS, KiB on Linux
+
+
 def run_soak(steps: int = 1_000_000, tasks=TASKS, seed: int = 0, warmup: float = WARMUP,
-             rebuild_fraction: float = REBUILD_FRACTION, progress: bool = True) -> SoakResult:
-    """Run the soak (see the module docstring) and return its figures."""
+             rebuild_fraction: float = REBUILD_FRACTION, progress: bool = True, trim: bool = True) -> SoakResult:
+    """Run the soak (see the module docstring) and return its figures. ``trim=False``: memory samples without
+    ``malloc_trim`` (RSS as the allocator leaves it, fragmentation included)."""
     tasks = list(tasks)
     _check_args(steps, tasks, warmup, rebuild_fraction)
     cells = _plan(steps, tasks, rebuild_fraction, seed)
@@ -240,11 +263,11 @@ def run_soak(steps: int = 1_000_000, tasks=TASKS, seed: int = 0, warmup: float =
                 first = False
                 # samples between rounds, so that every environment is between episodes
                 if rss_warm is None and done >= warm_at:
-                    rss_warm = _rss_now()
+                    rss_warm = _rss_now(trim)
                     samples.append((done, rss_warm))
                     next_sample = done + every
                 elif next_sample is not None and (done >= next_sample or done >= steps):
-                    samples.append((done, _rss_now()))
+                    samples.append((done, _rss_now(trim)))
                     next_sample = done + every
         finally:
             if bar is not None:
@@ -257,6 +280,7 @@ def run_soak(steps: int = 1_000_000, tasks=TASKS, seed: int = 0, warmup: float =
     for c in cells:
         c.env = c.policy = None
     return SoakResult(steps=done, wall_s=wall, rss_warmup=rss_warm, rss_end=rss_end, rss_samples=samples,
+                      rss_peak=peak_rss_bytes(), trimmed=trim,
                       python_warnings=[f"{w.category.__name__}: {w.message}" for w in caught], cells=cells)
 
 
@@ -271,8 +295,10 @@ def format_result(r: SoakResult, max_growth: float = MAX_GROWTH) -> str:
     lines.append("")
     lines.append(f"steps {r.steps:,} in {r.wall_s:.0f} s ({r.steps / r.wall_s:.0f} steps/s wall, environment "
                  f"building included)")
+    how = "in use (after gc and malloc_trim)" if r.trimmed else "after gc, not trimmed"
     lines.append(f"RSS after warm-up ({r.rss_samples[0][0]:,} steps) {r.rss_warmup / mib:.1f} MiB, at the end "
-                 f"{r.rss_end / mib:.1f} MiB: growth {r.growth_pct:+.2f} % (limit {max_growth:g} %)")
+                 f"{r.rss_end / mib:.1f} MiB: growth {r.growth_pct:+.2f} % (limit {max_growth:g} %); {how}; "
+                 f"peak RSS of the process {r.rss_peak / mib:.1f} MiB")
     lines.append("RSS samples (steps: MiB): " + ", ".join(f"{s:,}: {b / mib:.1f}" for s, b in r.rss_samples))
     lines.append(f"Python warnings: {len(r.python_warnings)}; MuJoCo warnings: {r.mujoco_warnings or 0}; "
                  f"divergences: {r.divergences}; non-finite observations: {r.nan_obs}")
@@ -295,6 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
                         f"at each reset; default {REBUILD_FRACTION}; 1: the rebuild path alone)")
     p.add_argument("--max-growth", type=float, default=MAX_GROWTH,
                    help=f"largest memory growth from warm-up to end that passes, in %% (default {MAX_GROWTH:g})")
+    p.add_argument("--no-trim", action="store_true",
+                   help="memory samples without malloc_trim (RSS with the allocator's free blocks)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -311,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     started = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     r = run_soak(args.steps, args.tasks, args.seed, args.warmup, args.rebuild_fraction,
-                 progress=not args.no_progress)
+                 progress=not args.no_progress, trim=not args.no_trim)
     try:
         load = " load average %.2f %.2f %.2f at the end;" % os.getloadavg()
     except OSError:
