@@ -416,14 +416,25 @@ def test_video_command_writes_an_episode(tmp_path, headless_gl):
     from vswrist_gym.envs import video
 
     out = tmp_path / "ep.mp4"
-    rc = video.main(["--task", "LoadHold", "--agent", "reference", "--out", str(out), "--width", "64",
-                     "--height", "48"])
+    rc = video.main(["--task", "VSWrist/LoadHold-v0", "--agent", "reference", "--out", str(out), "--width", "64",
+                     "--height", "48"])  # the full id, as train and evaluate take it
     assert rc == 0
     import imageio
 
     frames = sum(1 for _ in imageio.get_reader(str(out)))
     env = make("VSWrist/LoadHold-v0")
     assert frames == env.unwrapped.episode_steps + 1  # the reset frame and one per step
+
+
+def test_video_command_names_the_tasks_for_an_unknown_one(tmp_path, capsys):
+    from vswrist_gym.envs import video
+
+    with pytest.raises(SystemExit) as exc:
+        video.main(["--task", "VSWrist/Polishing-v0", "--out", str(tmp_path / "ep.mp4")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "unknown task 'VSWrist/Polishing-v0'" in err and "Polish" in err
+    assert not (tmp_path / "ep.mp4").exists()
 
 
 def test_bench_command_runs(tmp_path, capsys):

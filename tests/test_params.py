@@ -85,3 +85,12 @@ def test_vswrist_info_runs_and_self_checks():
 def test_cli_rejects_unknown_command():
     out = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "fly"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "unknown command 'fly'" in out.stderr
+
+
+def test_cli_version_is_the_installed_distributions():
+    from importlib.metadata import version
+
+    out = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "--version"], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == f"vswrist-gym {version('vswrist-gym')}"  # pyproject.toml's, via the metadata

@@ -22,7 +22,7 @@ COMMANDS = {
 
 
 def _usage() -> str:
-    lines = ["usage: vswrist COMMAND [options]", "", "commands:"]
+    lines = ["usage: vswrist [--version] COMMAND [options]", "", "commands:"]
     lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
     lines += ["", "`vswrist COMMAND --help` for the options of one command."]
     return "\n".join(lines)
@@ -32,6 +32,14 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
         print(_usage())
+        return 0
+    if argv[0] in ("-V", "--version"):
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            print(f"vswrist-gym {version('vswrist-gym')}")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            print("vswrist-gym (not installed: no version recorded)")
         return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:

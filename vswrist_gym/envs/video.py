@@ -49,9 +49,18 @@ def adaptive_agent(env, threshold: float = 0.05):
     return act
 
 
+def task_name(name: str) -> str:
+    """A task's short name from either form that ``train`` and ``evaluate`` accept: 'Polish' or 'VSWrist/Polish-v0'."""
+    short = name.removeprefix("VSWrist/").removesuffix("-v0")
+    if short not in TASKS:
+        raise argparse.ArgumentTypeError(f"unknown task {name!r}; choose one of {', '.join(TASKS)} "
+                                         f"(or its full id, e.g. VSWrist/{TASKS[0]}-v0)")
+    return short
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--task", required=True, choices=TASKS)
+    ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
     ap.add_argument("--agent", default="reference", help="reference | adaptive | random | path/to/model.zip")
     ap.add_argument("--algo", default="ppo", choices=("ppo", "sac"), help="algorithm of a .zip agent")
     ap.add_argument("--out", required=True, help="output .mp4 file")
