@@ -263,7 +263,24 @@ def test_rgb_array_frames(env_id, headless_gl):
     frame = env.render()
     assert frame.shape == (64, 96, 3) and frame.dtype == np.uint8
     assert frame.std() > 0  # not a blank image
+    # the scene stands on a floor under a sky, not in a black void: hardly any pixel is near black (with an
+    # empty background, the void filled about 75 % of the default Polish view)
+    assert np.mean(frame.max(axis=2) < 20) < 0.05
     env.close()
+
+
+def test_the_floor_is_drawn_only_and_frames_default_to_640_by_480(headless_gl):
+    """The floor collides with nothing, so it cannot change the dynamics; a config asking for a frame larger than
+    the model's offscreen buffer is refused up front instead of failing inside MuJoCo at the first render."""
+    env = make("VSWrist/Polish-v0", render_mode="rgb_array")
+    m = env.unwrapped.model
+    floor = m.geom("floor").id
+    assert m.geom_contype[floor] == 0 and m.geom_conaffinity[floor] == 0
+    env.reset(seed=0)
+    assert env.render().shape == (480, 640, 3)
+    env.close()
+    with pytest.raises(EnvConfigError, match=r"render\.width"):
+        make("VSWrist/Polish-v0", render_mode="rgb_array", config={"render": {"width": 4096}})
 
 
 @pytest.mark.parametrize("env_id", IDS)

@@ -15,6 +15,7 @@ from typing import Any, Mapping
 
 import yaml
 
+from ..model.builder import OFFSCREEN_SIZE
 from ..params import CONFIG_DIR
 
 ENV_CONFIG_DIR = CONFIG_DIR / "envs"
@@ -168,8 +169,8 @@ def validate_common(cfg: dict, defaults: Mapping[str, Any]) -> None:
     cmin = number("compliance.min", cfg["compliance"]["min"], 0.0, 1e3, lo_open=True)
     number("compliance.max", cfg["compliance"]["max"], cmin, 1e3, lo_open=True)
     _keys("render.", cfg["render"], defaults["render"])
-    number("render.width", cfg["render"]["width"], 16, 4096, integer=True)
-    number("render.height", cfg["render"]["height"], 16, 4096, integer=True)
+    number("render.width", cfg["render"]["width"], 16, OFFSCREEN_SIZE[0], integer=True)
+    number("render.height", cfg["render"]["height"], 16, OFFSCREEN_SIZE[1], integer=True)
     if not isinstance(cfg["render"]["camera"], str):
         raise EnvConfigError(f"'render.camera' must be a camera name, got {cfg['render']['camera']!r}")
     rnd = cfg["randomize"]

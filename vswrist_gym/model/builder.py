@@ -48,6 +48,7 @@ CLOSURE_TAG = "vswrist_closure"
 CLOSURE_FIELDS = 4
 LEG_COLORS = ("0.85 0.3 0.25 1", "0.3 0.7 0.35 1", "0.25 0.45 0.85 1")
 LINK_RADIUS_1 = 0.03  # m, radius at which the first link bracket is drawn (visual only)
+OFFSCREEN_SIZE = (1280, 960)  # px, the offscreen buffer: the largest frame a Renderer of this model can draw
 
 SceneFn = Callable[[mujoco.MjSpec], None]
 
@@ -198,15 +199,25 @@ def model_xml(params: WristParams | str | None = None) -> str:
     <numeric name="{MOTOR_TAG}" data="1"/>
   </custom>
   <visual>
-    <global offwidth="1280" offheight="960"/>
+    <global offwidth="{OFFSCREEN_SIZE[0]}" offheight="{OFFSCREEN_SIZE[1]}"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.6 0.6 0.6"/>
   </visual>
+  <asset>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.62 0.7 0.78" rgb2="0.12 0.13 0.16" width="256"
+             height="256"/>
+    <texture name="floor" type="2d" builtin="checker" rgb1="0.3 0.32 0.35" rgb2="0.24 0.26 0.29" width="256"
+             height="256" mark="edge" markrgb="0.38 0.4 0.43"/>
+    <material name="floor" texture="floor" texrepeat="10 10" reflectance="0.08"/>
+  </asset>
   <default>
     <geom contype="0" conaffinity="0" group="1"/>
     <joint damping="{damping:.17g}"/>
   </default>
   <worldbody>
     <light name="key" pos="0.2 -0.3 0.5" dir="-0.3 0.5 -1" diffuse="0.6 0.6 0.6"/>
+    <!-- a floor to see the scene against, drawn only: it collides with nothing (the default contype and
+         conaffinity are 0), and it lies below every task object but above where unused ones are parked -->
+    <geom name="floor" type="plane" pos="0 0 -0.3" size="1 1 0.05" material="floor" group="0"/>
     {cameras}
     <body name="base">
       <site name="base_site" pos="0 0 0" size="0.004"/>
