@@ -608,3 +608,26 @@ def test_python_fallback_callbacks_build_and_step_a_task_like_the_compiled_ones(
             monkeypatch.delenv("VSWRIST_NATIVE")
             native.install("c")
     np.testing.assert_allclose(runs[0], runs[1], rtol=0, atol=1e-9)
+
+
+def test_spec_max_episode_steps_is_where_episodes_truncate():
+    """Libraries read the episode length from ``spec.max_episode_steps``: it must be the step at which the env
+    truncates, counted here by stepping, for the default and a reconfigured length, and an env re-made from its
+    spec (which then adds Gymnasium's TimeLimit) must truncate at that same step, not earlier."""
+    def steps_to_end(env):
+        env.reset(seed=0)
+        n = 0
+        while True:
+            n += 1
+            *_, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+            if terminated or truncated:
+                assert truncated and not terminated
+                return n
+
+    for config, seconds in (({}, 3.0), ({"episode_s": 1.0}, 1.0)):
+        env = make("VSWrist/LoadHold-v0", config=config)
+        n = steps_to_end(env)
+        assert n == round(seconds / env.unwrapped.ctrl_dt)  # the configured length at the 50 Hz control rate
+        assert env.spec.max_episode_steps == n
+        again = gym.make(env.spec)
+        assert again.spec.max_episode_steps == n and steps_to_end(again) == n

@@ -25,6 +25,7 @@ decided at the last step of the episode; False before, and False when ``closure_
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Mapping
 
@@ -88,6 +89,22 @@ class VSWristEnv(gym.Env):
     # that read only poses and velocities set False, and then (unless the observation has ``tool_wrench``)
     # each step updates only those (``WristSim.sync_kinematics``) instead of a full ``mj_forward``
     reads_sensors: bool = True
+
+    # ------------------------------------------------------------------ spec
+    _spec = None
+
+    @property
+    def spec(self):
+        """The registration spec, with ``max_episode_steps`` = the episode length in steps: the env truncates its
+        own episodes (config ``episode_s``), and libraries read the length here. ``gymnasium.make`` hands the
+        unwrapped env a spec without one (its TimeLimit wrapper, absent here, would carry it)."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, value) -> None:
+        if value is not None and value.max_episode_steps is None:
+            value = dataclasses.replace(value, max_episode_steps=self.episode_steps)
+        self._spec = value
 
     # ------------------------------------------------------------------ construction
     def __init__(self, render_mode: str | None = None, config: Mapping[str, Any] | None = None, **overrides: Any):
