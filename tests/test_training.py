@@ -210,14 +210,20 @@ def test_linear_schedule_is_parsed_not_evaluated():
 # ------------------------------------------------------------------------------------------- statistics
 
 
-@pytest.mark.parametrize("df,expected", [(1, 12.706), (2, 4.303), (4, 2.776), (9, 2.262), (29, 2.045)])
-def test_t_quantile_matches_printed_tables(df, expected):
-    """Two-sided 95 % critical values from any Student-t table."""
-    assert protocol.t_quantile(0.975, df) == pytest.approx(expected, abs=1e-3)
+# Two-sided 95 % (t_0.975) and 99 % (t_0.995) critical values as printed in Student-t tables (e.g. Montgomery &
+# Runger, Applied Statistics and Probability for Engineers, Table V), three decimals.
+T_TABLE = [(0.975, 1, 12.706), (0.975, 2, 4.303), (0.975, 3, 3.182), (0.975, 4, 2.776), (0.975, 5, 2.571),
+           (0.975, 9, 2.262), (0.975, 10, 2.228), (0.975, 19, 2.093), (0.975, 29, 2.045), (0.975, 40, 2.021),
+           (0.995, 1, 63.657), (0.995, 4, 4.604), (0.995, 9, 3.250), (0.95, 4, 2.132), (0.9, 9, 1.383)]
+
+
+@pytest.mark.parametrize("p,df,expected", T_TABLE)
+def test_t_quantile_matches_printed_tables(p, df, expected):
+    assert protocol.t_quantile(p, df) == pytest.approx(expected, abs=5.01e-4)  # the table's rounding
 
 
 def test_t_quantile_tends_to_normal():
-    assert protocol.t_quantile(0.975, 100000) == pytest.approx(1.95996, abs=1e-3)
+    assert protocol.t_quantile(0.975, 100000) == pytest.approx(1.95996, abs=1e-4)
 
 
 def test_mean_ci_by_hand():

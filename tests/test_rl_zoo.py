@@ -1,0 +1,112 @@
+"""The shipped hyperparameter files in RL Zoo itself: `python -m rl_zoo3.train --conf-file` trains from them
+unchanged, and the model it writes replays through `vswrist evaluate` and `vswrist video` exactly as through
+`rl_zoo3.enjoy` (same action mode, same normalisation statistics), or is refused in one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vswrist_gym.agents import hparams
+
+pytest.importorskip("rl_zoo3")
+
+TASK = "VSWrist/Polish-v0"
+FOLDER = "VSWrist-Polish-v0"  # rl_zoo3's folder name for the id
+EVAL_SEED = 1_000_000  # `vswrist evaluate` resets episode 0 of seed 0 with this seed (protocol.reset_seed)
+
+
+def run(*args, cwd, timeout=300) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONWARNINGS": "ignore::DeprecationWarning"}
+    res = subprocess.run([sys.executable, *map(str, args)], capture_output=True, text=True, cwd=cwd,
+                         timeout=timeout, env=env)
+    return res
+
+
+@pytest.fixture(scope="module")
+def zoo_run(tmp_path_factory) -> Path:
+    """2,000 PPO steps on Polish with rl_zoo3, from the shipped file, with the flags its `vswrist:` section names."""
+    cwd = tmp_path_factory.mktemp("zoo")
+    args = hparams.zoo_train_args("ppo", TASK)
+    res = run("-m", "rl_zoo3.train", *args, "-n", "2000", "--seed", "0", "--device", "cpu", "-f", "logs",
+              "--num-threads", "1", cwd=cwd)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    folder = cwd / "logs" / "ppo" / f"{FOLDER}_1"
+    assert (folder / f"{FOLDER}.zip").is_file() and (folder / FOLDER / "vecnormalize.pkl").is_file()
+    return folder
+
+
+@pytest.fixture(scope="module")
+def zoo_return(zoo_run, tmp_path_factory) -> float:
+    """The return of `vswrist evaluate` on the zoo run, episode 0 of seed 0."""
+    out = tmp_path_factory.mktemp("zoo_eval")
+    res = run("-m", "vswrist_gym.cli", "evaluate", "--task", "Polish", "--agent", zoo_run, "--seeds", "0",
+              "--episodes", "1", "--out", out / "ev", cwd=out)
+    assert res.returncode == 0, res.stderr
+    return json.loads((out / "ev" / "metrics.json").read_text())["episodes"][0]["return"]
+
+
+def test_sac_file_loads_in_rl_zoo(tmp_path):
+    """sac.yaml too: 200 steps, below learning_starts, so only loading and building are exercised."""
+    res = run("-m", "rl_zoo3.train", *hparams.zoo_train_args("sac", TASK), "-n", "200", "--seed", "0",
+              "--device", "cpu", "-f", "logs", "--num-threads", "1", cwd=tmp_path)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    assert (tmp_path / "logs" / "sac" / f"{FOLDER}_1" / f"{FOLDER}.zip").is_file()
+
+
+def test_zoo_model_replays_as_in_rl_zoo_enjoy(zoo_run, zoo_return, tmp_path):
+    """rl_zoo3.enjoy (RL Zoo's own loading of the model, its env_kwargs and its vecnormalize.pkl) and
+    `vswrist evaluate` on the same reset seed give the same return."""
+    res = run("-m", "rl_zoo3.enjoy", "--algo", "ppo", "--env", TASK, "--gym-packages", "vswrist_gym",
+              "-f", zoo_run.parent.parent, "--exp-id", "1", "-n", "150", "--no-render", "--deterministic",
+              "--device", "cpu", "--seed", EVAL_SEED, cwd=tmp_path)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    enjoy = [float(x) for x in re.findall(r"Episode Reward: (-?[\d.]+)", res.stdout)]
+    assert enjoy, res.stdout[-2000:]
+    ours = zoo_return
+    assert ours == pytest.approx(enjoy[0], abs=0.006)  # enjoy prints two decimals
+    # the same through the model file's path, which resolves to its experiment folder
+    res = run("-m", "vswrist_gym.cli", "evaluate", "--task", TASK, "--agent", zoo_run / f"{FOLDER}.zip",
+              "--seeds", "0", "--episodes", "1", "--out", tmp_path / "ev2", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert json.loads((tmp_path / "ev2" / "metrics.json").read_text())["episodes"][0]["return"] == ours
+
+
+def test_zoo_model_video_uses_its_own_settings(zoo_run, zoo_return, tmp_path, headless_gl):
+    ours = zoo_return
+    res = run("-m", "vswrist_gym.cli", "video", "--task", TASK, "--agent", zoo_run, "--seed", EVAL_SEED,
+              "--width", "64", "--height", "48", "--out", tmp_path / "v.mp4", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    shown = float(re.search(r"return (-?[\d.]+)", res.stdout).group(1))
+    assert shown == pytest.approx(ours, abs=0.006)
+
+
+def test_mismatches_are_refused_in_one_line(zoo_run, tmp_path):
+    import gymnasium as gym
+
+    from vswrist_gym.agents.runs import RunDirError, TrainedAgent
+
+    agent = TrainedAgent(zoo_run)
+    assert agent.cfg.env_kwargs["action_mode"] == "residual"  # from ppo.yaml's entry, through config.yml
+    env = gym.make(TASK)  # the default posture_stiffness mode: same spaces, other meaning of the actions
+    try:
+        with pytest.raises(RunDirError, match="action_mode: trained with 'residual'"):
+            agent.check_env(env)
+    finally:
+        env.close()
+    # a model file outside its run folder says nothing of its action mode or statistics
+    shutil.copy(zoo_run / f"{FOLDER}.zip", tmp_path / "model.zip")
+    res = run("-m", "vswrist_gym.cli", "video", "--task", TASK, "--agent", tmp_path / "model.zip",
+              "--out", tmp_path / "v.mp4", cwd=tmp_path)
+    assert res.returncode == 2 and "model file alone" in res.stderr and "Traceback" not in res.stderr
+    # a run from another task
+    res = run("-m", "vswrist_gym.cli", "video", "--task", "Drill", "--agent", zoo_run, "--out", tmp_path / "v.mp4",
+              cwd=tmp_path)
+    assert res.returncode == 2 and "Polish" in res.stderr and "Traceback" not in res.stderr
