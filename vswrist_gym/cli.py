@@ -34,12 +34,9 @@ def main(argv: list[str] | None = None) -> int:
         print(_usage())
         return 0
     if argv[0] in ("-V", "--version"):
-        from importlib.metadata import PackageNotFoundError, version
+        from vswrist_gym import __version__
 
-        try:
-            print(f"vswrist-gym {version('vswrist-gym')}")
-        except PackageNotFoundError:  # run from a source tree that was never installed
-            print("vswrist-gym (not installed: no version recorded)")
+        print(f"vswrist-gym {__version__}")
         return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:

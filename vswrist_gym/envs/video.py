@@ -23,7 +23,7 @@ import sys
 
 import numpy as np
 
-from vswrist_gym import TASKS
+from vswrist_gym import TASKS, task_name
 
 
 def reference_agent(env, stiffness: float):
@@ -49,15 +49,6 @@ def adaptive_agent(env, threshold: float = 0.05):
             state["stiff"] = True
         return u.reference_to_action(obs[st], 1.0 if state["stiff"] else -1.0)
     return act
-
-
-def task_name(name: str) -> str:
-    """A task's short name from either form that ``train`` and ``evaluate`` accept: 'Polish' or 'VSWrist/Polish-v0'."""
-    short = name.removeprefix("VSWrist/").removesuffix("-v0")
-    if short not in TASKS:
-        raise argparse.ArgumentTypeError(f"unknown task {name!r}; choose one of {', '.join(TASKS)} "
-                                         f"(or its full id, e.g. VSWrist/{TASKS[0]}-v0)")
-    return short
 
 
 def main(argv: list[str] | None = None) -> int:
