@@ -15,6 +15,7 @@ COMMANDS = {
     "reproduce": ("vswrist_gym.reproduce:main", "regenerate the paper's section 5 figures and numbers"),
     "bench-env": ("vswrist_gym.envs.bench:main", "environment speed against Gymnasium's Ant-v5"),
     "video": ("vswrist_gym.envs.video:main", "write an episode video of an agent on a task"),
+    "view": ("vswrist_gym.tools.view:main", "MuJoCo's interactive viewer on a running episode"),
     "train": ("vswrist_gym.agents.train:main", "train a PPO or SAC policy"),
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
