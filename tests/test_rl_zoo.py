@@ -110,3 +110,16 @@ def test_mismatches_are_refused_in_one_line(zoo_run, tmp_path):
     res = run("-m", "vswrist_gym.cli", "video", "--task", "Drill", "--agent", zoo_run, "--out", tmp_path / "v.mp4",
               cwd=tmp_path)
     assert res.returncode == 2 and "Polish" in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.slow  # wiring only: the viewer's own test (test_view.py) and the agent checks above run by default
+def test_zoo_model_in_the_viewer(zoo_run, tmp_path):
+    """`vswrist view --agent` takes the same run folders, under Xvfb where it is installed."""
+    if shutil.which("xvfb-run") is None:
+        pytest.skip("Xvfb is not installed (apt-get install xvfb)")
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    res = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24", sys.executable, "-m", "vswrist_gym.cli",
+                          "view", "--task", "Polish", "--agent", str(zoo_run), "--duration", "2", "--speed", "4"],
+                         capture_output=True, text=True, timeout=180, env=env, cwd=tmp_path)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert int(re.search(r"(\d+) control steps", res.stdout)[1]) > 0
