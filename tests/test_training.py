@@ -331,6 +331,21 @@ def test_evaluate_a_run_dir_later_and_resume(trained_run, tmp_path):
     assert doc["summary"]["return"]["mean"] == pytest.approx(np.mean(per_seed))
 
 
+def test_video_replays_a_run_dir_as_evaluate_does(trained_run, tmp_path, headless_gl):
+    """`vswrist video --agent RUN` drives the run's own action mode (residual) with its own statistics: the same
+    return as `vswrist evaluate` on the same reset seed (episode 0 of evaluation seed 0)."""
+    import re
+
+    res = vswrist("evaluate", "--task", TASK, "--agent", trained_run, "--episodes", "1", "--seeds", "0",
+                  "--out", tmp_path / "ev")
+    assert res.returncode == 0, res.stderr
+    expected = json.loads((tmp_path / "ev" / "metrics.json").read_text())["episodes"][0]["return"]
+    res = vswrist("video", "--task", "LoadHold", "--agent", trained_run / "model.zip", "--seed",
+                  protocol.reset_seed(0, 0), "--width", "64", "--height", "48", "--out", tmp_path / "v.mp4")
+    assert res.returncode == 0, res.stderr
+    assert float(re.search(r"return (-?[\d.]+)", res.stdout)[1]) == pytest.approx(expected, abs=0.006)
+
+
 def test_resume_continues_from_the_last_checkpoint(trained_run, tmp_path):
     import shutil
 
