@@ -199,6 +199,18 @@ def test_files_of_the_earlier_format_still_load(tmp_path):
     assert cfg.policy_kwargs == {"net_arch": [8], "activation_fn": nn.Tanh}
 
 
+def test_documented_rl_zoo_command_matches_the_file():
+    """docs/training.md's rl_zoo3 command carries the flags the `vswrist:` section gives for Polish."""
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "training.md").read_text()
+    command = doc[doc.index("python -m rl_zoo3.train"):].split("\n\n")[0].split("```")[0].replace("\\\n", " ")
+    words = command.split()
+    args = hparams.zoo_train_args("ppo", "VSWrist/Polish-v0")
+    for flag, value in zip(args[::2], args[1::2]):
+        assert flag in words, flag
+        shown = words[words.index(flag) + 1]
+        assert shown == value or (flag == "--conf-file" and value.endswith(shown)), (flag, shown, value)
+
+
 def test_linear_schedule_is_parsed_not_evaluated():
     cfg = hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 10, "learning_rate": "lin_3e-4"})
     lr = cfg.algo_kwargs["learning_rate"]
