@@ -119,3 +119,40 @@ def test_zoo_model_in_the_viewer(zoo_run, tmp_path):
                          capture_output=True, text=True, timeout=180, env=env, cwd=tmp_path)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert int(re.search(r"(\d+) control steps", res.stdout)[1]) > 0
+
+
+def test_zoo_folder_reading_without_training(tmp_path):
+    """RL Zoo's config.yml / args.yml as rl_zoo3 writes them (yaml.dump of OrderedDicts), read without running
+    anything: the entry and env_kwargs as enjoy reads them, keys that only shape training ignored, keys that change
+    the policy's inputs refused, and any other Python tag refused."""
+    from collections import OrderedDict
+
+    import yaml
+
+    from vswrist_gym.agents.runs import RunDirError, read_zoo_run
+
+    folder = tmp_path / "ppo" / f"{FOLDER}_1"
+    params = folder / FOLDER
+    params.mkdir(parents=True)
+
+    def write(hyper: dict, env_kwargs=None):
+        (params / "config.yml").write_text(yaml.dump(OrderedDict(sorted(hyper.items()))))
+        (params / "args.yml").write_text(yaml.dump(OrderedDict([("algo", "ppo"), ("env", TASK),
+                                                                ("env_kwargs", env_kwargs), ("seed", 7)])))
+
+    entry = {"n_timesteps": 100, "policy": "MlpPolicy", "env_kwargs": {"action_mode": "residual"},
+             "normalize": {"gamma": 0.95, "norm_obs": True, "norm_reward": False},
+             "policy_kwargs": "dict(features_extractor_class=MyExtractor)", "noise_type": "normal"}
+    write(entry)
+    assert "!!python/object/apply:collections.OrderedDict" in (params / "config.yml").read_text()
+    cfg, seed, found = read_zoo_run(folder)
+    assert (cfg.env_id, cfg.algo, seed, found) == (TASK, "ppo", 7, params)
+    assert cfg.env_kwargs == {"action_mode": "residual"} and cfg.normalize == {"norm_obs": True, "norm_reward": False}
+    write(entry, env_kwargs={"action_mode": "motor"})  # --env-kwargs on rl_zoo3's command line win, as in enjoy
+    assert read_zoo_run(folder)[0].env_kwargs == {"action_mode": "motor"}
+    write({**entry, "frame_stack": 4})
+    with pytest.raises(RunDirError, match="frame_stack"):
+        read_zoo_run(folder)
+    (params / "config.yml").write_text("!!python/object/apply:os.system ['echo pwned']\n")
+    with pytest.raises(RunDirError, match="not readable"):
+        read_zoo_run(folder)

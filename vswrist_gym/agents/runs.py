@@ -677,6 +677,12 @@ def read_zoo_run(folder: Path) -> tuple[RunConfig, int, Path]:
     hyper = dict(hyper)
     if args.get("env_kwargs") is not None:
         hyper["env_kwargs"] = args["env_kwargs"]
+    # keys that shape training but not the policy's inputs or outputs: the model file holds the network itself,
+    # so these need not be understood to replay it (env_wrapper, frame_stack and the like do change what the
+    # policy sees, and stay errors)
+    for key in ("policy_kwargs", "callback", "monitor_kwargs", "noise_type", "noise_std", "replay_buffer_class",
+                "replay_buffer_kwargs"):
+        hyper.pop(key, None)
     normalize = hyper.get("normalize")
     if isinstance(normalize, dict):  # rl_zoo3 adds the algorithm's gamma (reward normalisation only)
         hyper["normalize"] = {k: v for k, v in normalize.items() if k != "gamma"}
