@@ -56,16 +56,34 @@ def _same(actual, expected) -> bool:
     return actual == expected
 
 
+def _rl_zoo_eval(text: str):
+    """RL Zoo's own reading of a policy_kwargs string (rl_zoo3's exp_manager evaluates it with torch.nn as nn): the
+    independent reference the package's eval-free parser is checked against. Only the shipped files go through it."""
+    import torch as th
+    import torch.nn as nn
+
+    return eval(text, {"__builtins__": {}, "dict": dict, "nn": nn, "th": th})  # noqa: S307 - trusted test input
+
+
 @pytest.mark.parametrize("algo,env_id", list(_entries()))
 def test_every_hyperparameter_key_is_used(algo, env_id):
     """Each key of each entry either configures the run or ends up, with its value, in the constructed model."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    raw = hparams.load_file(hparams.default_config_path(algo))[env_id]
+    entries, section = hparams.read_file(hparams.default_config_path(algo))
+    raw = entries[env_id]
     cfg = hparams.load_config(algo, env_id)
-    run_keys = set(raw) & set(hparams.RUN_KEYS)
+    run_keys = set(raw) & set(hparams.ZOO_RUN_KEYS)
     algo_keys = set(raw) - run_keys
     assert set(cfg.algo_kwargs) == algo_keys
+    # the settings RL Zoo has no key for come from the `vswrist:` section, never from the entry
+    assert not set(raw) & set(hparams.SECTION_KEYS)
+    for key, value in section[env_id].items():
+        assert getattr(cfg, key) == value, key
+    # policy_kwargs: the package's parser gives what RL Zoo's eval gives
+    if "policy_kwargs" in raw:
+        assert isinstance(raw["policy_kwargs"], str)  # RL Zoo's notation
+        assert cfg.policy_kwargs == _rl_zoo_eval(raw["policy_kwargs"])
     venv = DummyVecEnv([runs.EnvFactory(env_id, cfg.env_kwargs)])
     try:
         model = hparams.algo_class(algo)(cfg.policy, runs.wrap_normalize(venv, cfg),
@@ -78,17 +96,19 @@ def test_every_hyperparameter_key_is_used(algo, env_id):
         if "normalize" in raw:
             assert (cfg.normalize is not None) == bool(raw["normalize"])
             assert (model.get_vec_normalize_env() is not None) == bool(raw["normalize"])
-        for key, value in (raw.get("policy_kwargs") or {}).items():
+        for key, value in cfg.policy_kwargs.items():
             if key == "activation_fn":
-                acts = {m.__class__.__name__.lower() for m in model.policy.modules()}
-                assert {"tanh": "tanh", "relu": "relu", "elu": "elu", "leaky_relu": "leakyrelu"}[value] in acts
+                assert any(isinstance(m, value) for m in model.policy.modules())
+                others = {nn for nn in (type(m) for m in model.policy.modules())
+                          if nn.__module__ == "torch.nn.modules.activation"}
+                assert others == {value}, others
             elif key == "log_std_init":
                 assert np.allclose(model.policy.log_std.detach().numpy(), value)
             else:
                 assert model.policy_kwargs[key] == value, key
-        if "net_arch" in (raw.get("policy_kwargs") or {}):
+        if "net_arch" in cfg.policy_kwargs:
             layers = [m.out_features for m in model.policy.modules() if m.__class__.__name__ == "Linear"]
-            arch = raw["policy_kwargs"]["net_arch"]
+            arch = cfg.policy_kwargs["net_arch"]
             hidden = arch if isinstance(arch, list) else arch.get("pi", [])
             assert all(h in layers for h in hidden)
     finally:
@@ -112,8 +132,83 @@ def test_unknown_and_bad_keys_are_named():
         hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 100, "n_envs": 0})
     with pytest.raises(hparams.ConfigError, match="activation_fn"):
         hparams.resolve_entry("sac", "Pendulum-v1", {"n_timesteps": 100, "policy_kwargs": {"activation_fn": "nn.Tanh"}})
+    with pytest.raises(hparams.ConfigError, match="frame_stack"):
+        hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 100, "frame_stack": 4})
     with pytest.raises(hparams.ConfigError, match="algo"):
         hparams.resolve_entry("td3", "Pendulum-v1", {"n_timesteps": 100})
+
+
+@pytest.mark.parametrize("text", [
+    "dict(a=__import__('os').system('echo pwned'))",   # a call other than dict(...)
+    "dict(activation_fn=nn.Module)",                    # a name outside the allow-list
+    "dict(activation_fn=nn.Tanh.__subclasses__)",       # attribute access past an allowed name
+    "dict(**{'a': 1})", "dict({'a': 1})",               # unpacking and positional arguments
+    "dict(a=lambda: 1)", "dict(a=[x for x in ()])", "dict(a=1 + 1)", "dict(a=os)",
+    "dict(a=1", "[64, 64]", "nn.Tanh",                  # not a dict(...) expression
+])
+def test_policy_kwargs_strings_outside_the_grammar_are_refused(text):
+    with pytest.raises(hparams.ConfigError, match="policy_kwargs"):
+        hparams.parse_dict_string("policy_kwargs", text)
+
+
+def test_policy_kwargs_strings_read_as_rl_zoo_reads_them():
+    """RL Zoo notation, including forms the shipped files do not use, against RL Zoo's own evaluation."""
+    for text in ["dict(net_arch=[256, 256])", "dict(log_std_init=-2, ortho_init=False, activation_fn=nn.ReLU, "
+                 "net_arch=dict(pi=[256, 256], vf=[256, 256]))", "dict(net_arch=dict(pi=[64], qf=[400, 300]), "
+                 "optimizer_class=th.optim.AdamW, optimizer_kwargs=dict(eps=1e-5, betas=(0.9, 0.999)))",
+                 "{'net_arch': [8], 'squash_output': True, 'features_extractor_kwargs': None}", "dict()"]:
+        assert hparams.parse_dict_string("policy_kwargs", text) == _rl_zoo_eval(text), text
+    cfg = hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 10,
+                                                       "normalize": "dict(norm_obs=True, norm_reward=False)"})
+    assert cfg.normalize == {"norm_obs": True, "norm_reward": False}
+    with pytest.raises(hparams.ConfigError, match="normalize"):
+        hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 10, "normalize": "dict(norm_obs=nn.Tanh)"})
+
+
+def test_run_settings_section(tmp_path):
+    """The `vswrist:` section carries what RL Zoo takes as flags; it may not repeat an entry key or name a key or id
+    the file does not have."""
+    f = tmp_path / "ppo.yaml"
+    entry = {"n_timesteps": 100, "n_envs": 1}
+    f.write_text(yaml.safe_dump({"Pendulum-v1": entry, "vswrist": {"Pendulum-v1": {"eval_freq": 20,
+                                                                                   "keep_checkpoints": 3}}}))
+    cfg = hparams.load_config("ppo", "Pendulum-v1", f)
+    assert (cfg.eval_freq, cfg.keep_checkpoints) == (20, 3)
+    assert hparams.load_file(f) == {"Pendulum-v1": entry}
+    args = hparams.zoo_train_args("ppo", "Pendulum-v1", f)
+    assert args[args.index("--eval-freq") + 1] == "20" and args[args.index("--conf-file") + 1] == str(f)
+    for section, match in [({"Pendulum-v1": {"n_steps": 64}}, "n_steps"), ({"CartPole-v1": {"eval_freq": 5}},
+                                                                            "CartPole-v1")]:
+        f.write_text(yaml.safe_dump({"Pendulum-v1": entry, "vswrist": section}))
+        with pytest.raises(hparams.ConfigError, match=match):
+            hparams.load_config("ppo", "Pendulum-v1", f)
+    f.write_text(yaml.safe_dump({"Pendulum-v1": {**entry, "eval_freq": 10},
+                                 "vswrist": {"Pendulum-v1": {"eval_freq": 20}}}))
+    with pytest.raises(hparams.ConfigError, match="both"):
+        hparams.load_config("ppo", "Pendulum-v1", f)
+
+
+def test_files_of_the_earlier_format_still_load(tmp_path):
+    """Run directories and user files written before the RL Zoo format (run settings inside the entry,
+    activation_fn as a plain name) resolve to the same settings."""
+    import torch.nn as nn
+
+    cfg = hparams.resolve_entry("ppo", TASK, {"n_timesteps": 100, "vec_env": "dummy", "eval_freq": 50,
+                                              "policy_kwargs": {"net_arch": [8], "activation_fn": "tanh"}})
+    assert cfg.vec_env == "dummy" and cfg.eval_freq == 50
+    assert cfg.policy_kwargs == {"net_arch": [8], "activation_fn": nn.Tanh}
+
+
+def test_documented_rl_zoo_command_matches_the_file():
+    """docs/training.md's rl_zoo3 command carries the flags the `vswrist:` section gives for Polish."""
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "training.md").read_text()
+    command = doc[doc.index("python -m rl_zoo3.train"):].split("\n\n")[0].split("```")[0].replace("\\\n", " ")
+    words = command.split()
+    args = hparams.zoo_train_args("ppo", "VSWrist/Polish-v0")
+    for flag, value in zip(args[::2], args[1::2]):
+        assert flag in words, flag
+        shown = words[words.index(flag) + 1]
+        assert shown == value or (flag == "--conf-file" and value.endswith(shown)), (flag, shown, value)
 
 
 def test_linear_schedule_is_parsed_not_evaluated():
@@ -127,14 +222,20 @@ def test_linear_schedule_is_parsed_not_evaluated():
 # ------------------------------------------------------------------------------------------- statistics
 
 
-@pytest.mark.parametrize("df,expected", [(1, 12.706), (2, 4.303), (4, 2.776), (9, 2.262), (29, 2.045)])
-def test_t_quantile_matches_printed_tables(df, expected):
-    """Two-sided 95 % critical values from any Student-t table."""
-    assert protocol.t_quantile(0.975, df) == pytest.approx(expected, abs=1e-3)
+# Two-sided 95 % (t_0.975) and 99 % (t_0.995) critical values as printed in Student-t tables (e.g. Montgomery &
+# Runger, Applied Statistics and Probability for Engineers, Table V), three decimals.
+T_TABLE = [(0.975, 1, 12.706), (0.975, 2, 4.303), (0.975, 3, 3.182), (0.975, 4, 2.776), (0.975, 5, 2.571),
+           (0.975, 9, 2.262), (0.975, 10, 2.228), (0.975, 19, 2.093), (0.975, 29, 2.045), (0.975, 40, 2.021),
+           (0.995, 1, 63.657), (0.995, 4, 4.604), (0.995, 9, 3.250), (0.95, 4, 2.132), (0.9, 9, 1.383)]
+
+
+@pytest.mark.parametrize("p,df,expected", T_TABLE)
+def test_t_quantile_matches_printed_tables(p, df, expected):
+    assert protocol.t_quantile(p, df) == pytest.approx(expected, abs=5.01e-4)  # the table's rounding
 
 
 def test_t_quantile_tends_to_normal():
-    assert protocol.t_quantile(0.975, 100000) == pytest.approx(1.95996, abs=1e-3)
+    assert protocol.t_quantile(0.975, 100000) == pytest.approx(1.95996, abs=1e-4)
 
 
 def test_mean_ci_by_hand():
@@ -240,6 +341,21 @@ def test_evaluate_a_run_dir_later_and_resume(trained_run, tmp_path):
     returns = [float(r.split(",")[4]) for r in rows[1:]]
     per_seed = [np.mean(returns[:2]), np.mean(returns[2:])]
     assert doc["summary"]["return"]["mean"] == pytest.approx(np.mean(per_seed))
+
+
+def test_video_replays_a_run_dir_as_evaluate_does(trained_run, tmp_path, headless_gl):
+    """`vswrist video --agent RUN` drives the run's own action mode (residual) with its own statistics: the same
+    return as `vswrist evaluate` on the same reset seed (episode 0 of evaluation seed 0)."""
+    import re
+
+    res = vswrist("evaluate", "--task", TASK, "--agent", trained_run, "--episodes", "1", "--seeds", "0",
+                  "--out", tmp_path / "ev")
+    assert res.returncode == 0, res.stderr
+    expected = json.loads((tmp_path / "ev" / "metrics.json").read_text())["episodes"][0]["return"]
+    res = vswrist("video", "--task", "LoadHold", "--agent", trained_run / "model.zip", "--seed",
+                  protocol.reset_seed(0, 0), "--width", "64", "--height", "48", "--out", tmp_path / "v.mp4")
+    assert res.returncode == 0, res.stderr
+    assert float(re.search(r"return (-?[\d.]+)", res.stdout)[1]) == pytest.approx(expected, abs=0.006)
 
 
 def test_resume_continues_from_the_last_checkpoint(trained_run, tmp_path):

@@ -15,6 +15,7 @@ COMMANDS = {
     "reproduce": ("vswrist_gym.reproduce:main", "regenerate the paper's section 5 figures and numbers"),
     "bench-env": ("vswrist_gym.envs.bench:main", "environment speed against Gymnasium's Ant-v5"),
     "video": ("vswrist_gym.envs.video:main", "write an episode video of an agent on a task"),
+    "view": ("vswrist_gym.tools.view:main", "MuJoCo's interactive viewer on a running episode"),
     "train": ("vswrist_gym.agents.train:main", "train a PPO or SAC policy"),
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
@@ -34,12 +35,9 @@ def main(argv: list[str] | None = None) -> int:
         print(_usage())
         return 0
     if argv[0] in ("-V", "--version"):
-        from importlib.metadata import PackageNotFoundError, version
+        from vswrist_gym import __version__
 
-        try:
-            print(f"vswrist-gym {version('vswrist-gym')}")
-        except PackageNotFoundError:  # run from a source tree that was never installed
-            print("vswrist-gym (not installed: no version recorded)")
+        print(f"vswrist-gym {__version__}")
         return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:

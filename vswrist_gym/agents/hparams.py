@@ -1,12 +1,24 @@
-"""Hyperparameter files for PPO and SAC, RL-Zoo style: one YAML per algorithm, keyed by environment id.
+"""Hyperparameter files for PPO and SAC in RL Zoo's format: one YAML per algorithm, keyed by environment id.
 
-The files are plain YAML: nothing in them is evaluated. Every key of an entry is consumed exactly once while
-resolving it (run keys here, algorithm keys by the stable-baselines3 constructor, policy keys by the policy),
-and an unknown key is an error that names it, so a typo cannot be silently ignored.
+A shipped file loads unchanged in `python -m rl_zoo3.train --conf-file FILE` and in `vswrist train`. An entry holds
+only keys RL Zoo knows (n_timesteps, n_envs, policy, normalize, env_kwargs, policy_kwargs and the algorithm's
+constructor arguments); `policy_kwargs` is written as RL Zoo writes it, a string such as
+`"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"`, which rl_zoo3 evaluates and this module parses with `ast`
+(literals, `dict(...)` and allow-listed `nn.X` / `th.optim.X` names only: nothing in a file is executed). The run
+settings RL Zoo takes as command-line flags (vec_env, eval_freq, n_eval_episodes, checkpoint_freq,
+keep_checkpoints) live in a top-level `vswrist:` section keyed by the same ids, which rl_zoo3 never reads because it
+reads only the entry of the id it trains.
+
+Every key of an entry is consumed exactly once while resolving it (run keys here, algorithm keys by the
+stable-baselines3 constructor, policy keys by the policy), and an unknown key is an error that names it, so a typo
+cannot be silently ignored. A run directory's `config.yaml` stores the merged entry (run settings inside it), which
+`resolve_entry` reads as well, as it reads files written before the split (run settings inside the entries,
+`activation_fn` as a plain name).
 """
 
 from __future__ import annotations
 
+import ast
 import copy
 import inspect
 from dataclasses import dataclass, field
@@ -17,26 +29,44 @@ import yaml
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 ALGO_NAMES = ("ppo", "sac")
+RUN_SECTION = "vswrist"  # the top-level section of run settings that RL Zoo has no key for
 
-# Keys of an entry that configure the run rather than the algorithm, with their meaning.
-RUN_KEYS = {
+# Keys of an RL Zoo entry that configure the run rather than the algorithm, with their meaning.
+ZOO_RUN_KEYS = {
     "n_timesteps": "total environment steps of training (int > 0)",
     "n_envs": "parallel environments (int > 0); more than one uses SubprocVecEnv unless vec_env says otherwise",
-    "vec_env": "'subproc' or 'dummy': how the n_envs environments are run",
     "policy": "stable-baselines3 policy class name (MlpPolicy)",
-    "normalize": "false, true, or a mapping of VecNormalize options (norm_obs, norm_reward, clip_obs, clip_reward)",
+    "normalize": "false, true, or VecNormalize options as a mapping or a dict(...) string (norm_obs, norm_reward, "
+                 "clip_obs, clip_reward, epsilon)",
     "env_kwargs": "mapping passed to gymnasium.make",
-    "eval_freq": "environment steps between periodic evaluations (int > 0; at most half the run)",
-    "n_eval_episodes": "episodes per periodic evaluation (int > 0)",
-    "checkpoint_freq": "environment steps between checkpoints (int > 0)",
-    "keep_checkpoints": "how many of the newest checkpoints to keep on disk (int > 0)",
-    "policy_kwargs": "mapping passed to the policy; activation_fn is a name (tanh, relu, elu, leaky_relu)",
+    "policy_kwargs": "mapping passed to the policy, as RL Zoo writes it: a string \"dict(net_arch=[64, 64], "
+                     "activation_fn=nn.Tanh)\"",
 }
+# Run settings RL Zoo takes as command-line flags (in brackets): in the file's `vswrist:` section.
+SECTION_KEYS = {
+    "vec_env": "'subproc' or 'dummy': how the n_envs environments are run (rl_zoo3 --vec-env)",
+    "eval_freq": "environment steps between periodic evaluations (int > 0; at most half the run) (rl_zoo3 --eval-freq)",
+    "n_eval_episodes": "episodes per periodic evaluation (int > 0) (rl_zoo3 --eval-episodes)",
+    "checkpoint_freq": "environment steps between checkpoints (int > 0) (rl_zoo3 --save-freq)",
+    "keep_checkpoints": "how many of the newest checkpoints to keep on disk (int > 0) (rl_zoo3 keeps all)",
+}
+RUN_KEYS = {**ZOO_RUN_KEYS, **SECTION_KEYS}
+# RL Zoo keys that `vswrist train` does not implement: named in the error instead of "unknown key".
+ZOO_UNSUPPORTED = {"frame_stack", "env_wrapper", "vec_env_wrapper", "callback", "monitor_kwargs", "noise_type",
+                   "noise_std", "replay_buffer_class", "replay_buffer_kwargs"}
 # Keys the training command sets itself; an entry may not set them.
 RESERVED_ALGO_KEYS = {"self", "policy", "env", "tensorboard_log", "seed", "verbose", "device", "_init_setup_model",
                       "replay_buffer_class", "rollout_buffer_class"}
 NORMALIZE_KEYS = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "epsilon"}
+# Plain names accepted for activation_fn in a policy_kwargs mapping (files and run directories of earlier versions).
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
+# The only names a policy_kwargs string may use, as RL Zoo's files spell them (torch.nn as nn, torch as th).
+ALLOWED_NAMES = {
+    **{f"nn.{n}": ("torch.nn", n) for n in ("Tanh", "ReLU", "ELU", "LeakyReLU", "GELU", "SiLU", "Sigmoid",
+                                             "Softplus", "Identity")},
+    **{f"th.nn.{n}": ("torch.nn", n) for n in ("Tanh", "ReLU", "ELU", "LeakyReLU", "GELU", "SiLU")},
+    **{f"th.optim.{n}": ("torch.optim", n) for n in ("Adam", "AdamW", "RMSprop", "SGD")},
+}
 
 
 class ConfigError(ValueError):
@@ -87,8 +117,9 @@ def default_config_path(algo: str) -> Path:
     return CONFIG_DIR / f"{algo}.yaml"
 
 
-def load_file(path: str | Path) -> dict:
-    """Read a hyperparameter file: a mapping from environment id to an entry mapping."""
+def read_file(path: str | Path) -> tuple[dict, dict]:
+    """(entries, run settings) of a hyperparameter file: the entries map environment ids to RL Zoo entries, the
+    run settings are its `vswrist:` section (environment id -> mapping of SECTION_KEYS), empty when absent."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"hyperparameter file not found: {path}")
@@ -98,16 +129,52 @@ def load_file(path: str | Path) -> dict:
         raise ConfigError(f"hyperparameter file {path} is not valid YAML: {exc}") from None
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise ConfigError(f"hyperparameter file {path} must map environment ids to mappings of hyperparameters")
-    return data
+    data = dict(data)
+    section = data.pop(RUN_SECTION, None) or {}
+    for env_id, settings in section.items():
+        if env_id not in data:
+            raise ConfigError(f"{path}: '{RUN_SECTION}.{env_id}' names no entry of the file; entries: "
+                              f"{', '.join(sorted(data))}")
+        if not isinstance(settings, dict):
+            raise ConfigError(f"{path}: '{RUN_SECTION}.{env_id}' must be a mapping of {sorted(SECTION_KEYS)}, "
+                              f"got {settings!r}")
+        bad = sorted(set(settings) - set(SECTION_KEYS))
+        if bad:
+            raise ConfigError(f"{path}: '{RUN_SECTION}.{env_id}' has unknown key(s) {bad}; allowed: "
+                              f"{sorted(SECTION_KEYS)} (algorithm keys belong in the entry '{env_id}')")
+    return data, section
+
+
+def load_file(path: str | Path) -> dict:
+    """The entries of a hyperparameter file: a mapping from environment id to an RL Zoo entry."""
+    return read_file(path)[0]
 
 
 def load_config(algo: str, env_id: str, path: str | Path | None = None) -> RunConfig:
-    """The resolved entry for `env_id` in the algorithm's file (default: the packaged `configs/<algo>.yaml`)."""
+    """The resolved entry for `env_id` in the algorithm's file (default: the packaged `configs/<algo>.yaml`),
+    with its run settings from the file's `vswrist:` section."""
     path = Path(path) if path is not None else default_config_path(algo)
-    data = load_file(path)
+    data, section = read_file(path)
     if env_id not in data:
         raise ConfigError(f"{path} has no entry for '{env_id}'; entries: {', '.join(sorted(data))}")
-    return resolve_entry(algo, env_id, data[env_id], source=str(path))
+    entry = dict(data[env_id])
+    settings = section.get(env_id, {})
+    both = sorted(set(entry) & set(settings))
+    if both:
+        raise ConfigError(f"{path}: {both} set both in the entry '{env_id}' and in '{RUN_SECTION}.{env_id}'; "
+                          f"keep one")
+    entry.update(settings)
+    return resolve_entry(algo, env_id, entry, source=str(path))
+
+
+def zoo_train_args(algo: str, env_id: str, path: str | Path | None = None) -> list[str]:
+    """The `python -m rl_zoo3.train` arguments that train `env_id` from the file as `vswrist train` does (seed,
+    log folder and device left to the caller): the run settings of the `vswrist:` section as RL Zoo's flags."""
+    path = Path(path) if path is not None else default_config_path(algo)
+    cfg = load_config(algo, env_id, path)
+    return ["--algo", algo, "--env", env_id, "--gym-packages", "vswrist_gym", "--conf-file", str(path),
+            "--vec-env", cfg.vec_env, "--eval-freq", str(cfg.eval_freq), "--eval-episodes", str(cfg.n_eval_episodes),
+            "--save-freq", str(cfg.checkpoint_freq)]
 
 
 def _positive_int(entry: dict, key: str, default: int | None = None) -> int:
@@ -134,16 +201,89 @@ def parse_schedule(key: str, value: Any):
     return value
 
 
-def _policy_kwargs(value: Any) -> dict:
+_LITERALS = (int, float, str, bool, type(None))
+
+
+def _dotted(node: ast.AST) -> str | None:
+    """'nn.Tanh' for the AST of nn.Tanh; None for anything but a chain of plain names."""
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        head = _dotted(node.value)
+        return f"{head}.{node.attr}" if head else None
+    return None
+
+
+def _literal(node: ast.AST, key: str, names: bool, text: str):
+    """The value of one node of a dict(...) expression: literals, lists, tuples, dict(...) calls and dict displays
+    with string keys, and (where `names`) an allow-listed dotted name. Anything else is refused unevaluated."""
+    def refuse(why: str):
+        frag = ast.get_source_segment(text, node) or ast.dump(node)
+        raise ConfigError(f"'{key}': {why}: {frag!r} in {text!r} (allowed: numbers, strings, True/False/None, "
+                          f"lists, dict(...)" + (", and the names in vswrist_gym.agents.hparams.ALLOWED_NAMES, e.g. nn.Tanh"
+                                               if names else "")
+                          + ")")
+
+    if isinstance(node, ast.Constant):
+        if isinstance(node.value, _LITERALS):
+            return node.value
+        refuse("a constant of an unsupported type")
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)) \
+            and isinstance(node.operand, ast.Constant) and type(node.operand.value) in (int, float):
+        return -node.operand.value if isinstance(node.op, ast.USub) else node.operand.value
+    if isinstance(node, (ast.List, ast.Tuple)):
+        items = [_literal(e, key, names, text) for e in node.elts]
+        return items if isinstance(node, ast.List) else tuple(items)
+    if isinstance(node, ast.Dict):
+        out = {}
+        for k, v in zip(node.keys, node.values):
+            if not (isinstance(k, ast.Constant) and isinstance(k.value, str)):
+                refuse("dictionary keys must be strings")
+            out[k.value] = _literal(v, key, names, text)
+        return out
+    if isinstance(node, ast.Call):
+        if not (isinstance(node.func, ast.Name) and node.func.id == "dict") or node.args \
+                or any(kw.arg is None for kw in node.keywords):
+            refuse("the only call allowed is dict(name=value, ...)")
+        return {kw.arg: _literal(kw.value, key, names, text) for kw in node.keywords}
+    if isinstance(node, (ast.Attribute, ast.Name)):
+        dotted = _dotted(node)
+        if names and dotted in ALLOWED_NAMES:
+            import importlib
+
+            module, attr = ALLOWED_NAMES[dotted]
+            return getattr(importlib.import_module(module), attr)
+        refuse("a name that is not allowed")
+    refuse("an expression that is not a literal")
+
+
+def parse_dict_string(key: str, text: str, names: bool = True) -> dict:
+    """Parse RL Zoo's `"dict(a=1, b=nn.Tanh)"` notation without evaluating it (see `_literal` for what it takes)."""
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise ConfigError(f"'{key}': {text!r} is not a dict(...) expression ({exc.msg})") from None
+    value = _literal(tree.body, key, names, text.strip())
+    if not isinstance(value, dict):
+        raise ConfigError(f"'{key}' must be a dict(...) expression or a mapping, got {text!r}")
+    return value
+
+
+def parse_policy_kwargs(value: Any) -> dict:
+    """policy_kwargs as a mapping for the policy: RL Zoo's string form, or a mapping (activation_fn by plain name)."""
     if value is None:
         return {}
+    if isinstance(value, str):
+        return parse_dict_string("policy_kwargs", value)
     if not isinstance(value, dict):
-        raise ConfigError(f"'policy_kwargs' must be a mapping, got {value!r}")
+        raise ConfigError(f"'policy_kwargs' must be a string such as \"dict(net_arch=[64, 64], activation_fn=nn.Tanh)\""
+                          f" or a mapping, got {value!r}")
     out = copy.deepcopy(value)
     if "activation_fn" in out:
         name = out["activation_fn"]
         if name not in ACTIVATIONS:
-            raise ConfigError(f"'policy_kwargs.activation_fn' must be one of {', '.join(ACTIVATIONS)}, got {name!r}")
+            raise ConfigError(f"'policy_kwargs.activation_fn' must be one of {', '.join(ACTIVATIONS)} in a mapping "
+                              f"(or nn.Tanh etc. in RL Zoo's string form), got {name!r}")
         import torch.nn as nn
 
         out["activation_fn"] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[name]
@@ -164,6 +304,8 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
     if policy != "MlpPolicy":
         raise ConfigError(f"'policy' must be 'MlpPolicy' (the observations are flat vectors), got {policy!r}")
     normalize = entry.pop("normalize", False)
+    if isinstance(normalize, str):  # RL Zoo's "dict(norm_obs=True, norm_reward=False)"
+        normalize = parse_dict_string("normalize", normalize, names=False)
     if normalize is True:
         normalize = {}
     elif normalize is False or normalize is None:
@@ -173,7 +315,7 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
         if bad:
             raise ConfigError(f"'normalize' has unknown keys {sorted(bad)}; allowed: {sorted(NORMALIZE_KEYS)}")
     else:
-        raise ConfigError(f"'normalize' must be true, false or a mapping, got {normalize!r}")
+        raise ConfigError(f"'normalize' must be true, false, a mapping or a dict(...) string, got {normalize!r}")
     env_kwargs = entry.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):
         raise ConfigError(f"'env_kwargs' must be a mapping, got {env_kwargs!r}")
@@ -181,8 +323,12 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
     n_eval_episodes = _positive_int(entry, "n_eval_episodes", 5)
     checkpoint_freq = _positive_int(entry, "checkpoint_freq", max(n_timesteps // 5, 1))
     keep_checkpoints = _positive_int(entry, "keep_checkpoints", 2)
-    policy_kwargs = _policy_kwargs(entry.pop("policy_kwargs", None))
+    policy_kwargs = parse_policy_kwargs(entry.pop("policy_kwargs", None))
 
+    zoo_only = sorted(set(entry) & ZOO_UNSUPPORTED)
+    if zoo_only:
+        raise ConfigError(f"{source or 'entry'} [{env_id}]: RL Zoo key(s) {zoo_only} are not supported by vswrist "
+                          f"train (it takes {sorted(RUN_KEYS)} and {algo.upper()} arguments)")
     allowed = set(inspect.signature(cls.__init__).parameters) - RESERVED_ALGO_KEYS
     bad = sorted(set(entry) - allowed)
     if bad:

@@ -31,7 +31,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from vswrist_gym import TASKS
+from vswrist_gym import TASKS, task_name
 
 
 def _pin_one_core() -> int | None:
@@ -185,7 +185,8 @@ def bench_vec(name: str, steps: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist bench-env", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+                    help=f"short names or full ids (default all: {' '.join(TASKS)})")
     ap.add_argument("--steps", type=int, default=3000, help="env steps per timed run (default 3000)")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per environment; the median is reported")
     ap.add_argument("--no-ant", action="store_true", help="skip the Ant-v5 reference")

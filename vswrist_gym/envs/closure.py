@@ -19,7 +19,7 @@ import argparse
 
 import numpy as np
 
-from vswrist_gym import TASKS
+from vswrist_gym import TASKS, task_name
 
 AGENTS = ("reference", "random", "bangbang")
 
@@ -67,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=300, help="env steps per task, agent and seed (default 300)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="seeds (default 0-4)")
-    ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+                    help=f"short names or full ids (default all: {' '.join(TASKS)})")
     ap.add_argument("--agents", nargs="+", default=list(AGENTS), choices=AGENTS)
     ap.add_argument("--params", nargs="+", default=["paper_knm", "paper_knm_fine"],
                     help="device presets to compare (default: the environments' paper_knm and its 0.25 ms step)")

@@ -29,7 +29,7 @@ import argparse
 
 import numpy as np
 
-from vswrist_gym import TASKS
+from vswrist_gym import TASKS, task_name
 
 CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 ERR_ON = 0.03   # rad
@@ -277,7 +277,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=10)
     ap.add_argument("--seed0", type=int, default=1000, help="first episode seed (episodes seed0, seed0 + 1, ...)")
-    ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+                    help=f"short names or full ids (default all: {' '.join(TASKS)})")
     ap.add_argument("--energy-weight", type=float, default=None, help="override reward.energy")
     ap.add_argument("--terms", action="store_true",
                     help="also print, per task, each agent's mean episode sum of every weighted reward term")

@@ -43,7 +43,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from vswrist_gym import TASKS
+from vswrist_gym import TASKS, task_name
 
 AGENTS = ("random", "baseline")
 # every randomisation term on: the device terms rebuild the simulator at each reset (the scale ranges and
@@ -312,7 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m vswrist_gym.envs.soak",
                                 description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--steps", type=int, default=1_000_000, help="environment steps in all (default 1,000,000)")
-    p.add_argument("--tasks", nargs="+", default=list(TASKS), help=f"tasks (default all: {' '.join(TASKS)})")
+    p.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+                   help=f"short names or full ids (default all: {' '.join(TASKS)})")
     p.add_argument("--seed", type=int, default=0, help="first seed (each environment gets the next one)")
     p.add_argument("--warmup", type=float, default=WARMUP,
                    help=f"fraction of the steps before the reference memory sample (default {WARMUP})")

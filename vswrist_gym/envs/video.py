@@ -6,8 +6,11 @@ Agents:
   constant stiffness command ``--stiffness`` in [-1, 1], through ``reference_to_action``;
 * ``adaptive``: as ``reference``, but soft (-1) until the tool/hand feels a load, then stiff (+1);
 * ``random``: uniform random actions;
-* a path to a stable-baselines3 ``.zip`` (``--algo ppo|sac``): its deterministic policy (raw observations; a
-  model trained with observation normalisation needs its statistics, which this command does not load).
+* ``analytic`` or ``analytic:STIFFNESS``: the analytic baseline, as ``vswrist evaluate`` runs it;
+* a trained run: a ``vswrist train`` run directory or an RL Zoo experiment folder (``logs/ppo/VSWrist-Polish-v0_1``),
+  or a model file inside either: its deterministic policy with its own normalisation statistics, on the
+  environment built with its own ``env_kwargs`` (action mode). A run from another task, a model file outside a run
+  folder, or an environment whose settings differ from the run's is a one-line error, never a wrong video.
 
 Rendering follows the package's rule (``vswrist_gym/__init__.py``): EGL on Linux without a display, unless
 ``MUJOCO_GL`` is set.
@@ -16,12 +19,11 @@ Rendering follows the package's rule (``vswrist_gym/__init__.py``): EGL on Linux
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 import numpy as np
 
-from vswrist_gym import TASKS
+from vswrist_gym import TASKS, task_name
 
 
 def reference_agent(env, stiffness: float):
@@ -49,20 +51,14 @@ def adaptive_agent(env, threshold: float = 0.05):
     return act
 
 
-def task_name(name: str) -> str:
-    """A task's short name from either form that ``train`` and ``evaluate`` accept: 'Polish' or 'VSWrist/Polish-v0'."""
-    short = name.removeprefix("VSWrist/").removesuffix("-v0")
-    if short not in TASKS:
-        raise argparse.ArgumentTypeError(f"unknown task {name!r}; choose one of {', '.join(TASKS)} "
-                                         f"(or its full id, e.g. VSWrist/{TASKS[0]}-v0)")
-    return short
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
-    ap.add_argument("--agent", default="reference", help="reference | adaptive | random | path/to/model.zip")
-    ap.add_argument("--algo", default="ppo", choices=("ppo", "sac"), help="algorithm of a .zip agent")
+    ap.add_argument("--agent", default="reference",
+                    help="reference | adaptive | random | analytic[:S] | RUN_DIR | RL Zoo folder | model file in one")
+    ap.add_argument("--algo", choices=("ppo", "sac"), help="check that a trained agent is of this algorithm")
+    ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
+                    help="which model of a run directory (as in vswrist evaluate)")
     ap.add_argument("--out", required=True, help="output .mp4 file")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stiffness", type=float, default=0.0, help="stiffness command of the reference agent")
@@ -82,7 +78,26 @@ def main(argv: list[str] | None = None) -> int:
     render = {"width": args.width, "height": args.height}
     if args.camera:
         render["camera"] = args.camera
-    env = gym.make(f"VSWrist/{args.task}-v0", render_mode="rgb_array", config={"render": render})
+    env_id = f"VSWrist/{args.task}-v0"
+    builtin = args.agent in ("reference", "adaptive", "random")
+    kwargs: dict = {}
+    if not builtin:
+        from vswrist_gym.agents.evaluate import AgentSpec
+        from vswrist_gym.agents.hparams import ConfigError
+        from vswrist_gym.agents.runs import RunDirError
+
+        try:
+            spec = AgentSpec(args.agent, checkpoint=args.checkpoint)
+            spec.check_task(env_id)
+            if args.algo and spec.trained is not None and spec.trained.cfg.algo != args.algo:
+                raise RunDirError(f"{args.agent} is a {spec.trained.cfg.algo.upper()} run, not {args.algo.upper()}")
+        except (ConfigError, RunDirError) as exc:
+            print(f"vswrist video: error: {exc}", file=sys.stderr)
+            return 2
+        kwargs = dict(spec.env_kwargs)  # the run's own settings (action mode), rendering added to them
+    config = dict(kwargs.pop("config", None) or {})
+    config["render"] = {**(config.get("render") or {}), **render}
+    env = gym.make(env_id, render_mode="rgb_array", config=config, **kwargs)
     if args.agent == "reference":
         policy = reference_agent(env, args.stiffness)
     elif args.agent == "adaptive":
@@ -90,14 +105,14 @@ def main(argv: list[str] | None = None) -> int:
     elif args.agent == "random":
         env.action_space.seed(args.seed)
         policy = lambda obs: env.action_space.sample()  # noqa: E731
-    elif args.agent.endswith(".zip") and os.path.exists(args.agent):
-        import stable_baselines3 as sb3
-        model = {"ppo": sb3.PPO, "sac": sb3.SAC}[args.algo].load(args.agent, device="cpu")
-        policy = lambda obs: model.predict(obs, deterministic=True)[0]  # noqa: E731
     else:
-        print(f"vswrist video: unknown agent {args.agent!r} (reference, adaptive, random or an existing .zip)",
-              file=sys.stderr)
-        return 2
+        try:
+            agent = spec.make(env)  # checks the environment against the run: spaces and settings
+        except (ConfigError, RunDirError) as exc:
+            env.close()
+            print(f"vswrist video: error: {exc}", file=sys.stderr)
+            return 2
+        policy = lambda obs: agent.predict(obs, deterministic=True)[0]  # noqa: E731
 
     obs, info = env.reset(seed=args.seed)
     fps = env.unwrapped.metadata["render_fps"]

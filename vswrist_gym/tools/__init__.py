@@ -1,0 +1,1 @@
+"""Command-line tools around the environments: viewer, pictures (and, elsewhere, benchmarks and probes)."""
