@@ -19,6 +19,7 @@ COMMANDS = {
     "train": ("vswrist_gym.agents.train:main", "train a PPO or SAC policy"),
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
+    "aggregate": ("vswrist_gym.agents.aggregate:main", "scores across tasks: IQM, probability of improvement"),
 }
 
 
