@@ -21,8 +21,9 @@ ALGO_NAMES = ("ppo", "sac")
 # Keys of an entry that configure the run rather than the algorithm, with their meaning.
 RUN_KEYS = {
     "n_timesteps": "total environment steps of training (int > 0)",
-    "n_envs": "parallel environments (int > 0); more than one uses SubprocVecEnv unless vec_env says otherwise",
-    "vec_env": "'subproc' or 'dummy': how the n_envs environments are run",
+    "n_envs": "parallel environments (int > 0), run as vec_env says",
+    "vec_env": "'batch' (default: one process, physics on threads), 'subproc' or 'dummy': how the n_envs "
+               "environments are run",
     "policy": "stable-baselines3 policy class name (MlpPolicy)",
     "normalize": "false, true, or a mapping of VecNormalize options (norm_obs, norm_reward, clip_obs, clip_reward)",
     "env_kwargs": "mapping passed to gymnasium.make",
@@ -69,6 +70,7 @@ class RunConfig:
         out = copy.deepcopy(self.raw)
         out["n_timesteps"] = self.n_timesteps
         out["n_envs"] = self.n_envs
+        out["vec_env"] = self.vec_env
         return out
 
 
@@ -150,6 +152,9 @@ def _policy_kwargs(value: Any) -> dict:
     return out
 
 
+VEC_ENVS = ("batch", "subproc", "dummy")
+
+
 def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunConfig:
     """Check and split one entry; every key is consumed here or validated against the algorithm's constructor."""
     cls = algo_class(algo)
@@ -157,9 +162,9 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
     entry = copy.deepcopy(entry)
     n_timesteps = _positive_int(entry, "n_timesteps")
     n_envs = _positive_int(entry, "n_envs", 1)
-    vec_env = entry.pop("vec_env", "subproc")
-    if vec_env not in ("subproc", "dummy"):
-        raise ConfigError(f"'vec_env' must be 'subproc' or 'dummy', got {vec_env!r}")
+    vec_env = entry.pop("vec_env", "batch")
+    if vec_env not in VEC_ENVS:
+        raise ConfigError(f"'vec_env' must be one of {list(VEC_ENVS)}, got {vec_env!r}")
     policy = entry.pop("policy", "MlpPolicy")
     if policy != "MlpPolicy":
         raise ConfigError(f"'policy' must be 'MlpPolicy' (the observations are flat vectors), got {policy!r}")

@@ -469,11 +469,25 @@ class VSWristEnv(gym.Env):
             raise ResetNeeded("step() called after the episode ended (terminated or truncated) or before the "
                               "first reset(); call reset() to start an episode")
         a = check_action(action, self.action_space.shape)
+        self._begin_step(a)
+        self._advance()
+        return self._finish_step()
+
+    # One step in three phases, so that a batch (``batch.VSWristVectorEnv``) runs the physics of all its worlds
+    # together (on threads) between the Python phases: ``_begin_step`` (action -> motor references, task loads),
+    # ``_advance`` (the physics only: touches nothing but this world's MjModel/MjData, so worlds may advance
+    # concurrently) and ``_finish_step`` (measures, reward, observation, info).
+    def _begin_step(self, a: np.ndarray) -> None:
+        """``a``: a checked action (``check_action``); clipped here to [-1, 1]."""
         a = np.maximum(a, -1.0)  # = np.clip(a, -1, 1) (a is finite), a new array: the caller's is untouched
         np.minimum(a, 1.0, out=a)
-        theta = self._motor_refs(a)
+        self._a = a
+        self._theta = self._motor_refs(a)
         self._before_physics(self._t)
-        failure = None
+
+    def _advance(self) -> None:
+        theta = self._theta
+        self._failure = None
         try:
             if self._latency > 0.0 and self._theta_prev is not None:
                 self.sim.step(self._latency)
@@ -483,8 +497,11 @@ class VSWristEnv(gym.Env):
                 self.sim.set_motor_references(theta)
                 self.sim.step(self.ctrl_dt)
         except self._SimulationError as exc:
-            failure = str(exc)
-        self._theta_prev = theta
+            self._failure = str(exc)
+
+    def _finish_step(self):
+        a, failure = self._a, self._failure
+        self._theta_prev = self._theta
         self._step += 1
         self._t = self._step * self.ctrl_dt
         self._measure()
