@@ -126,6 +126,8 @@ class VSWristEnv(gym.Env):
         self.params = self.nominal_params
         self.ctrl_dt = cfg["ctrl_dt"]
         self._closure_warn, self._closure_truncate = cfg["closure_warn"], cfg["closure_truncate"]
+        # neither the task nor the observation reads sensors: a step updates only poses and velocities
+        self._light_sync = not (self.reads_sensors or "tool_wrench" in cfg["observation"])
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.ctrl_dt)))
 
         self._WristSim = _import_sim()
@@ -498,6 +500,13 @@ class VSWristEnv(gym.Env):
                 self.sim.step(self.ctrl_dt)
         except self._SimulationError as exc:
             self._failure = str(exc)
+            return
+        # bring what ``_measure`` reads up to date here, so that in a batch this C work runs on the threads too
+        # (the same calls ``_measure`` would make; they find nothing stale afterwards)
+        if self._light_sync:
+            self.sim.sync_kinematics()
+        else:
+            self.sim.sync()
 
     def _finish_step(self):
         a, failure = self._a, self._failure
@@ -554,7 +563,7 @@ class VSWristEnv(gym.Env):
     def _measure(self) -> None:
         """Read the simulator once per step (``posture()`` also brings its sensors up to date, unless
         neither the task nor the observation reads them: then only poses and velocities are updated)."""
-        if not (self.reads_sensors or "tool_wrench" in self.cfg["observation"]):
+        if self._light_sync:
             self.sim.sync_kinematics()
         self._posture = self.sim.posture()
         self._defl = self.sim.deflections()
