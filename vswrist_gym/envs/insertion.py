@@ -15,7 +15,7 @@ Adapting stiffness pays: at the task's reference the soft wrist cannot push past
 less than ``fit_force`` at the remaining RUD error; a deeper posture reference can), and the stiff one pays
 preload energy all episode and presses the pin against the walls (wall force ~ stiffness x misalignment); soft
 while approaching and stiff only while pushing the fit down beats every constant stiffness
-(``python -m vswrist_gym.envs.probe --tasks Insertion``).
+(``python -m vswrist_gym.tools.probe --tasks Insertion``).
 
 Contact forces: ``contact_force`` (and the ``jamming`` term) is the normal force of the walls and chamfers on
 the tool; the fit plate has its own sensor, ``bottom_force``.
@@ -28,7 +28,7 @@ at the last step the pin's end is inside the hole between ``success_depth`` x ``
 (``SEAT_SLACK`` past it at most: deeper, the pin is beside or under the hole, not in it), the wall force never
 exceeded ``success_wall_force`` over the episode, and the mean elastic energy stays below ``success_energy``.
 Flailing reaches the depth (it swings the pin under the hole or rams it through the fit with wall forces of
-hundreds of N), so depth alone would reward it (``python -m vswrist_gym.envs.probe --success``).
+hundreds of N), so depth alone would reward it (``python -m vswrist_gym.tools.probe --success``).
 """
 
 from __future__ import annotations

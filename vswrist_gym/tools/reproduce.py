@@ -40,9 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import AnalyticController
-from .params import DEVICE_PRESETS, IDENTIFIED_PRESETS, PRESETS, load_params
-from .stiffness import coupler_stiffness
+from ..control import AnalyticController
+from ..params import DEVICE_PRESETS, IDENTIFIED_PRESETS, PRESETS, load_params
+from ..stiffness import coupler_stiffness
 
 PAPER = {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
 NUMBER_KEYS = tuple(PAPER)
@@ -73,7 +73,7 @@ def trial(params, lam: float, duration: float, gravity_compensation: bool = True
     ``load``: the force (N, base frame) at the hand point; default LOAD_MASS x ``environment.gravity``.
     ``control_dt`` (s) and ``reference_fn`` (t -> (RUD, FE, PS)) exist for the what-if diagnostics of
     ``vswrist_gym.identify``; the reproduction uses CONTROL_DT and ``reference``."""
-    from .sim import SimulationError, WristSim
+    from ..sim import SimulationError, WristSim
 
     reference_fn = reference if reference_fn is None else reference_fn
     sim = WristSim(params)
@@ -382,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(vswrist_gym.identify; minutes) and write identify.json")
     args = parser.parse_args(argv)
     if args.identify:
-        from . import identify
+        from .. import identify
         return identify.main(["--out", args.out] + (["--quick"] if args.quick else []))
     results = run(args.out, quick=args.quick, presets=args.presets,
                   gravity_compensation=not args.no_gravity_compensation)

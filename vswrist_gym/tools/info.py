@@ -7,9 +7,9 @@ import dataclasses
 
 import numpy as np
 
-from .kinematics import WristKinematics
-from .params import PRESETS, load_params
-from .stiffness import coupler_stiffness, lambda_range, max_leg_torque
+from ..kinematics import WristKinematics
+from ..params import PRESETS, load_params
+from ..stiffness import coupler_stiffness, lambda_range, max_leg_torque
 
 
 def self_check(kin: WristKinematics, samples: int = 500, seed: int = 0) -> float:

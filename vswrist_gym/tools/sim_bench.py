@@ -17,10 +17,10 @@ from datetime import datetime, timezone
 import mujoco
 import numpy as np
 
-from .model import native
-from .params import DEVICE_PRESETS, PRESETS, load_params
-from .sim import WristSim
-from .stiffness import coupler_stiffness, lambda_range, motor_references
+from ..model import native
+from ..params import DEVICE_PRESETS, PRESETS, load_params
+from ..sim import WristSim
+from ..stiffness import coupler_stiffness, lambda_range, motor_references
 
 
 def _reference_schedule(sim: WristSim, n: int, seed: int = 0) -> np.ndarray:

@@ -1,0 +1,3 @@
+"""Tools around the environments that are not environments: benchmarks, probes, tables, videos, soak and
+closure checks, the paper's reproduction, ``vswrist info``. Each is ``python -m vswrist_gym.tools.<name>`` and
+most are ``vswrist`` subcommands."""
