@@ -470,6 +470,21 @@ def test_bench_command_runs(tmp_path, capsys):
     assert all(parts[k] > 0.0 for k in ("physics", "sensor update", "controller", "observation"))
 
 
+def test_bench_command_batched_section_runs(tmp_path):
+    import json
+
+    from vswrist_gym.tools import bench
+
+    path = tmp_path / "bench.json"
+    assert bench.main(["--tasks", "LoadHold", "--steps", "20", "--repeats", "1", "--no-ant", "--batch", "2",
+                       "--json", str(path)]) == 0
+    b = json.loads(path.read_text())["batch"]
+    one = b["tasks"][0]["one_thread"]
+    assert one["n"] == 2 and one["overhead_ratio"] >= 1.0  # the batch's step includes its worlds' physics
+    assert b["single"][0]["old"] > 0 and b["single"][0]["new"] > 0
+    assert {t["goal"] for t in b["targets"]} >= {"<= 1.10", ">= 1.8x"}
+
+
 def test_adapting_stiffness_pays_on_polish():
     """The force rule (stiffness follows the pass's target force) beats every constant stiffness command."""
     from vswrist_gym.tools.probe import probe
