@@ -32,7 +32,7 @@ from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .spaces import check_action
+from .actions import check_action
 
 
 def default_threads() -> int:

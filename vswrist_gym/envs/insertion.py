@@ -36,10 +36,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ._contact import CONTACT_SOLREF, add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
-from .base import FORCE_CAP, VSWristEnv
+from .base import VSWristEnv
 from .config import EnvConfigError
-from .drill import FINGER_END
+from .rewards import FORCE_CAP
+from .shared import CONTACT_SOLREF, FINGER_END, add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
 
 WALL = 0.008      # m, half thickness of the walls around the hole
 PLATE = 0.02      # m, half extent of the walls beyond the hole
@@ -206,7 +206,7 @@ class InsertionEnv(VSWristEnv):
         return float(self.data.qpos[self._fit_qadr] / lo)
 
     def _task_obs_terms(self):
-        from .spaces import ObsTerm
+        from .observations import ObsTerm
         return [ObsTerm("bottom_force", 1, "N", "normal force of the fit plate (at the hole bottom once pushed down) "
                         "on the pin (no sensor noise)", self.bottom_force, 0.0, 1e5)]
 

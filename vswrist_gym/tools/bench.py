@@ -191,8 +191,9 @@ import math  # noqa: E402
 
 from gymnasium.error import ResetNeeded  # noqa: E402
 
-from vswrist_gym.envs.base import _sum_sq  # noqa: E402
-from vswrist_gym.envs.spaces import check_action, wrap_angle  # noqa: E402
+from vswrist_gym.envs.rewards import _sum_sq  # noqa: E402
+from vswrist_gym.envs.actions import check_action  # noqa: E402
+from vswrist_gym.envs.rewards import wrap_angle  # noqa: E402
 
 
 def _legacy_measure(self) -> None:
