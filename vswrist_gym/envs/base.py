@@ -36,6 +36,7 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from ..params import load_params
+from ..stiffness import spring_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
 from .config import EnvConfigError, load_env_config, validate_task
 from .observations import ObservationsMixin
@@ -368,9 +369,8 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._defl = self.sim.deflections()
         self._posture_list = self._posture.tolist()
         self._defl_list = self._defl.tolist()
-        s = self.params.spring
-        c0, c1, c2 = (np.cosh(self._defl / s.delta0) - 1.0).tolist()
-        self._energy = float(2.0 * s.K * s.delta0 * (c0 + c1 + c2))  # = np.sum of 3 terms, same order
+        e0, e1, e2 = spring_energy(self._defl, self.params).tolist()
+        self._energy = e0 + e1 + e2  # = np.sum of 3 terms, same order
         self._contact = self._contact_force()
 
     # ------------------------------------------------------------------ task hooks

@@ -8,6 +8,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..stiffness import spring_stiffness, spring_torque
+
 
 @dataclass(frozen=True)
 class ObsTerm:
@@ -94,8 +96,7 @@ class ObservationsMixin:
         return c if c > 0.0 else 0.0  # a touch sensor never reads a pull
 
     def _obs_spring_torques(self):
-        s = self.params.spring
-        return -2.0 * s.K * np.sinh(self._defl / s.delta0)
+        return spring_torque(self._defl, self.params)
 
     def _obs_stiffness(self):
         """The paper's J_a^T Sigma_s J_a from the measured deflections: the stiffness the springs give now
@@ -103,11 +104,8 @@ class ObservationsMixin:
         # the posture is finite here (``step`` ends the episode otherwise), so skip kinematics_at's checks
         ay, az = self._posture_list[0], self._posture_list[1]
         _, Ja = self.ctrl._q1_ja(ay, az)
-        s = self.params.spring
-        c, d0 = 2.0 * s.K / s.delta0, s.delta0
         s00 = s01 = s11 = 0.0
-        for (a, b), dk in zip(Ja, self._defl_list):
-            sig = c * math.cosh(dk / d0)
+        for (a, b), sig in zip(Ja, spring_stiffness(self._defl, self.params).tolist()):
             s00 += sig * a * a
             s01 += sig * a * b
             s11 += sig * b * b

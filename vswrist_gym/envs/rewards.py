@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from ..stiffness import spring_energy
+
 COMMON_REWARD_TERMS = ("tracking", "energy", "action_rate", "termination")
 FORCE_CAP = 10.0  # force penalties saturate at FORCE_CAP x scales.force: one violent contact sample (rigid
                   # contacts driven by stiff servos reach kN for a step) must not swamp a whole episode
@@ -65,6 +67,5 @@ class RewardsMixin:
     def elastic_energy(self) -> float:
         """Energy stored in the three springs (J): sum of 2 K delta0 (cosh(delta/delta0) - 1), the integral of
         the spring law, with the simulator's (possibly randomised) spring parameters."""
-        s = self.params.spring
-        d = np.asarray(self.sim.deflections(), dtype=float)
-        return float(2.0 * s.K * s.delta0 * np.sum(np.cosh(d / s.delta0) - 1.0))
+        e0, e1, e2 = spring_energy(self.sim.deflections(), self.params).tolist()
+        return e0 + e1 + e2

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..control import AnalyticController
 from ..params import DEVICE_PRESETS, IDENTIFIED_PRESETS, PRESETS, load_params
-from ..stiffness import coupler_stiffness
+from ..stiffness import coupler_stiffness, spring_torque
 
 PAPER = {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
 NUMBER_KEYS = tuple(PAPER)
@@ -201,7 +201,7 @@ def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
         theta = ctrl.step((0, 0, 0), lam=lam)
         q1, _, _ = ctrl.kinematics_at(u0)
         delta = q1 - theta[:3]
-        torques.append(-2 * params.spring.K * np.sinh(delta / params.spring.delta0))
+        torques.append(spring_torque(delta, params))
         stiff.append(np.linalg.eigvalsh(ctrl.stiffness()).mean())
     ax.set_aspect("equal")
     ax.set_xlabel("FE, rad/(N m)")
