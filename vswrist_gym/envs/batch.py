@@ -112,7 +112,7 @@ class VSWristVectorEnv(VectorEnv):
         self.threads = n
         bounds = np.linspace(0, self.num_envs, n + 1).round().astype(int)
         self._chunks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-        self._pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="vswrist-physics") if n > 1 else None
+        self._pool = ThreadPoolExecutor(max_workers=n - 1, thread_name_prefix="vswrist-physics") if n > 1 else None
 
     def _close_pool(self) -> None:
         pool = getattr(self, "_pool", None)
@@ -131,7 +131,8 @@ class VSWristVectorEnv(VectorEnv):
         if self._pool is None:
             self._advance_chunk(0, self.num_envs, live)
             return
-        futures = [self._pool.submit(self._advance_chunk, a, b, live) for a, b in self._chunks]
+        futures = [self._pool.submit(self._advance_chunk, a, b, live) for a, b in self._chunks[1:]]
+        self._advance_chunk(*self._chunks[0], live)  # this thread takes the first chunk instead of waiting
         for f in futures:
             f.result()  # re-raises a world's exception here
 
