@@ -256,3 +256,23 @@ def test_sb3_trains_on_the_batch():
     model.learn(128)
     assert model.num_timesteps >= 128
     sb3.close()
+
+
+@pytest.mark.parametrize("env_id", ["VSWrist/Polish-v0", "VSWrist/Drill-v0"])
+def test_batched_evaluation_gives_the_serial_records(env_id):
+    """The protocol's episodes of one seed as the worlds of a batch: the same records and trace as one env run
+    episode after episode (the analytic agent acts row by row, so the equality is exact)."""
+    from vswrist_gym.agents.protocol import evaluate
+
+    def make_agent(env):
+        return AnalyticAgent(env, schedule=[(0.0, -0.5), (0.3, 0.5)])
+
+    cfg = {"config": {"episode_s": 0.4}}
+    serial, tr1 = evaluate(env_id, make_agent, [0, 1], 3, env_kwargs=cfg, trace_episode=(1, 2), batch=False)
+    batched, tr2 = evaluate(env_id, make_agent, [0, 1], 3, env_kwargs=cfg, trace_episode=(1, 2))
+    assert len(batched) == 6
+    for a, b in zip(serial, batched):
+        assert a.keys() == b.keys()
+        for k in a:
+            assert a[k] == b[k] or (a[k] != a[k] and b[k] != b[k]), (k, a[k], b[k])
+    assert tr1 == tr2
