@@ -276,3 +276,15 @@ def test_batched_evaluation_gives_the_serial_records(env_id):
         for k in a:
             assert a[k] == b[k] or (a[k] != a[k] and b[k] != b[k]), (k, a[k], b[k])
     assert tr1 == tr2
+
+
+def test_reset_mask_resets_only_the_masked_worlds():
+    venv = make_batch("VSWrist/Impact-v0")
+    obs0, _ = venv.reset(seed=20)
+    a = np.zeros(venv.action_space.shape)
+    obs1, *_ = venv.step(a)
+    obs2, info = venv.reset(options={"reset_mask": np.array([False, True, False])})
+    np.testing.assert_array_equal(obs2[[0, 2]], obs1[[0, 2]])  # untouched worlds keep their observation
+    assert not np.array_equal(obs2[1], obs1[1]) and list(info["_posture_error"]) == [False, True, False]
+    assert venv.envs[0]._step == 1 and venv.envs[1]._step == 0
+    venv.close()
