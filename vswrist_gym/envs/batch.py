@@ -93,9 +93,8 @@ class VSWristVectorEnv(VectorEnv):
         self._dict_obs = first.cfg["obs_mode"] == "dict"
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._started = False
-        from ..model import native
-
-        self.backend = native.backend()
+        # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
+        self.backend = getattr(first.sim, "backend", "c")
         self.set_threads(threads)
 
     # ------------------------------------------------------------------ threads
