@@ -179,19 +179,29 @@ def test_device_randomisation_rebuilds_each_worlds_model():
     venv.close()
 
 
-def test_threads_default_to_the_cores_are_settable_and_serial_with_python_callbacks():
+def test_threads_default_to_the_cores_are_settable_and_serial_with_python_callbacks(monkeypatch):
     from vswrist_gym.envs.batch import default_threads
+    from vswrist_gym.model import native
 
     venv = make_batch("VSWrist/LoadHold-v0", n=4)
     assert venv.threads == min(default_threads(), 4)
     venv.set_threads(1)
     assert venv.threads == 1
-    venv.backend = "python"  # the fallback callbacks re-enter Python every substep: no threads
-    venv.set_threads(4)
-    assert venv.threads == 1
     with pytest.raises(ValueError, match="threads"):
         venv.set_threads(0)
     venv.close()
+    # the fallback callbacks re-enter Python every substep: the batch steps serially whatever threads says
+    monkeypatch.setenv("VSWRIST_NATIVE", "0")
+    try:
+        venv = make_batch("VSWrist/LoadHold-v0", n=4, threads=4)
+        assert native.backend() == "python" and venv.backend == "python" and venv.threads == 1
+        venv.reset(seed=0)
+        _, r, *_ = venv.step(np.zeros(venv.action_space.shape))
+        assert np.all(np.isfinite(r))
+        venv.close()
+    finally:
+        monkeypatch.delenv("VSWRIST_NATIVE")
+        native.install("c")
 
 
 def test_pickled_batch_continues_identically():
