@@ -190,6 +190,12 @@ def test_threads_default_to_the_cores_are_settable_and_serial_with_python_callba
     with pytest.raises(ValueError, match="threads"):
         venv.set_threads(0)
     venv.close()
+    monkeypatch.setenv("VSWRIST_THREADS", "3")  # what vswrist compare gives each of its concurrent trainings
+    assert default_threads() == 3
+    monkeypatch.setenv("VSWRIST_THREADS", "zero")
+    with pytest.raises(ValueError, match="VSWRIST_THREADS"):
+        default_threads()
+    monkeypatch.delenv("VSWRIST_THREADS")
     # the fallback callbacks re-enter Python every substep: the batch steps serially whatever threads says
     monkeypatch.setenv("VSWRIST_NATIVE", "0")
     try:

@@ -35,8 +35,20 @@ from gymnasium.vector.utils import batch_space
 from .actions import check_action
 
 
+THREADS_ENV = "VSWRIST_THREADS"  # physics threads of every batch made without ``threads`` (e.g. by vswrist train)
+
+
 def default_threads() -> int:
-    """The cores this process may run on (``os.sched_getaffinity`` where it exists)."""
+    """``$VSWRIST_THREADS`` if set, else the cores this process may run on (``os.sched_getaffinity``)."""
+    value = os.environ.get(THREADS_ENV)
+    if value:
+        try:
+            n = int(value)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ValueError(f"{THREADS_ENV} must be an integer >= 1 (physics threads per batch), got {value!r}")
+        return n
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - macOS, Windows
