@@ -53,3 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nKinematics self-check: max |FK(IK(T)) - T| over 500 postures x 3 legs = {err:.2e}"
           f" ({'ok' if err < 1e-10 else 'FAILED'})")
     return 0 if err < 1e-10 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

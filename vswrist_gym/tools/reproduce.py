@@ -407,3 +407,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{d['torque_ratio_hs_over_ls']:.3g})")
     print(f"figures and results.json in {args.out}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -330,3 +330,7 @@ def main(argv: list[str] | None = None) -> int:
                      for k in range(PERTURBATIONS)]
                 print(f"  [{preset}] {mode:<9} {max(c):.2e} / {np.median(c):.2e} / {min(c):.2e}", flush=True)
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
