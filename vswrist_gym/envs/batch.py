@@ -251,16 +251,19 @@ class VSWristVectorEnv(VectorEnv):
         """Gymnasium's vector info: each key an array over worlds, with a bool mask ``_key`` of the worlds that
         have it. Keys every world has (the common case) are stacked at once; the rest go through ``_add_info``."""
         out: dict[str, Any] = {}
-        stacked: set = set()
         n = self.num_envs
         present = [i for i in range(n) if mask is None or mask[i]]
         if not present:
             return out
-        common = set(infos[present[0]])
-        for i in present[1:]:
-            common &= infos[i].keys()
+        keys0 = infos[present[0]].keys()
+        uniform = all(infos[i].keys() == keys0 for i in present)
+        stacked: set = set()
         if len(present) == n:
-            for k in infos[0]:
+            common = set(keys0)
+            if not uniform:
+                for i in present[1:]:
+                    common &= infos[i].keys()
+            for k in keys0:
                 if k not in common or k in ("final_obs", "final_info"):
                     continue
                 vals = [d[k] for d in infos]
@@ -275,6 +278,8 @@ class VSWristVectorEnv(VectorEnv):
                     continue
                 out[f"_{k}"] = np.ones(n, dtype=bool)
                 stacked.add(k)
+        if uniform and len(stacked) == len(keys0):
+            return out
         for i in present:
             rest = {k: v for k, v in infos[i].items() if k not in stacked}
             if rest:
