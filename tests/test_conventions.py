@@ -58,9 +58,9 @@ def test_task_name_takes_both_forms():
 
 
 # every command-line tool that takes tasks, as a module with main(argv) and its task option
-TASK_CLIS = [("vswrist_gym.envs.bench", "--tasks"), ("vswrist_gym.envs.probe", "--tasks"),
-             ("vswrist_gym.envs.closure", "--tasks"), ("vswrist_gym.envs.soak", "--tasks"),
-             ("vswrist_gym.envs.video", "--task"), ("vswrist_gym.tools.view", "--task"),
+TASK_CLIS = [("vswrist_gym.tools.bench", "--tasks"), ("vswrist_gym.tools.probe", "--tasks"),
+             ("vswrist_gym.tools.closure", "--tasks"), ("vswrist_gym.tools.soak", "--tasks"),
+             ("vswrist_gym.tools.video", "--task"), ("vswrist_gym.tools.view", "--task"),
              ("vswrist_gym.tools.pictures", "--tasks")]
 
 

@@ -405,14 +405,14 @@ def test_documented_tables_match_the_code():
     episode length, indices, randomisation) are what the code produces now."""
     from pathlib import Path
 
-    from vswrist_gym.envs.table import render_blocks, update
+    from vswrist_gym.tools.table import render_blocks, update
 
     root = Path(__file__).resolve().parents[1]
     blocks = render_blocks()
     for path, required in ((root / "docs" / "environments.md", True), (root / "README.md", False)):
         text = path.read_text()
         assert update(text, blocks, required) == text, \
-            f"stale tables: run python -m vswrist_gym.envs.table --write {path.relative_to(root)}"
+            f"stale tables: run python -m vswrist_gym.tools.table --write {path.relative_to(root)}"
 
 
 def test_stiffness_observation_is_the_paper_formula_at_the_spring_state():
@@ -430,7 +430,7 @@ def test_stiffness_observation_is_the_paper_formula_at_the_spring_state():
 
 
 def test_video_command_writes_an_episode(tmp_path, headless_gl):
-    from vswrist_gym.envs import video
+    from vswrist_gym.tools import video
 
     out = tmp_path / "ep.mp4"
     rc = video.main(["--task", "VSWrist/LoadHold-v0", "--agent", "reference", "--out", str(out), "--width", "64",
@@ -444,7 +444,7 @@ def test_video_command_writes_an_episode(tmp_path, headless_gl):
 
 
 def test_video_command_names_the_tasks_for_an_unknown_one(tmp_path, capsys):
-    from vswrist_gym.envs import video
+    from vswrist_gym.tools import video
 
     with pytest.raises(SystemExit) as exc:
         video.main(["--task", "VSWrist/Polishing-v0", "--out", str(tmp_path / "ep.mp4")])
@@ -457,7 +457,7 @@ def test_video_command_names_the_tasks_for_an_unknown_one(tmp_path, capsys):
 def test_bench_command_runs(tmp_path, capsys):
     import json
 
-    from vswrist_gym.envs import bench
+    from vswrist_gym.tools import bench
 
     path = tmp_path / "bench.json"
     assert bench.main(["--tasks", "Drill", "--steps", "20", "--repeats", "1", "--no-ant", "--breakdown",
@@ -470,9 +470,24 @@ def test_bench_command_runs(tmp_path, capsys):
     assert all(parts[k] > 0.0 for k in ("physics", "sensor update", "controller", "observation"))
 
 
+def test_bench_command_batched_section_runs(tmp_path):
+    import json
+
+    from vswrist_gym.tools import bench
+
+    path = tmp_path / "bench.json"
+    assert bench.main(["--tasks", "LoadHold", "--steps", "20", "--repeats", "1", "--no-ant", "--batch", "2",
+                       "--json", str(path)]) == 0
+    b = json.loads(path.read_text())["batch"]
+    one = b["tasks"][0]["one_thread"]
+    assert one["n"] == 2 and one["overhead_ratio"] >= 1.0  # the batch's step includes its worlds' physics
+    assert b["single"][0]["old"] > 0 and b["single"][0]["new"] > 0
+    assert {t["goal"] for t in b["targets"]} >= {"<= 1.10", ">= 1.8x"}
+
+
 def test_adapting_stiffness_pays_on_polish():
     """The force rule (stiffness follows the pass's target force) beats every constant stiffness command."""
-    from vswrist_gym.envs.probe import probe
+    from vswrist_gym.tools.probe import probe
 
     r = probe("Polish", episodes=8)
     assert r["adaptive"][0] > max(v[0] for v in r["constant"].values())
@@ -481,7 +496,7 @@ def test_adapting_stiffness_pays_on_polish():
 def test_adapting_stiffness_pays_on_impact():
     """Stiff in free motion, soft from the first contact: beats every constant stiffness command (Impact's reward
     trades tracking accuracy against contact force)."""
-    from vswrist_gym.envs.probe import probe
+    from vswrist_gym.tools.probe import probe
 
     r = probe("Impact", episodes=8)
     assert r["adaptive"][0] > max(v[0] for v in r["constant"].values())
@@ -490,7 +505,7 @@ def test_adapting_stiffness_pays_on_impact():
 def test_adapting_stiffness_pays_on_insertion():
     """Soft, and stiff only while pushing past the fit: beats every constant stiffness command (the soft wrist cannot
     push past the fit, the stiff one pays preload energy and wall force all episode)."""
-    from vswrist_gym.envs.probe import probe
+    from vswrist_gym.tools.probe import probe
 
     r = probe("Insertion", episodes=8)
     assert r["adaptive"][0] > max(v[0] for v in r["constant"].values())
@@ -519,7 +534,7 @@ def test_insertion_pin_pushes_the_fit_with_the_fit_force_while_it_slides():
     sensor (``bottom_force``, apart from the walls' ``contact_force``) reads the fit force."""
     import gymnasium as gym
 
-    from vswrist_gym.envs.probe import constant_policy
+    from vswrist_gym.tools.probe import constant_policy
 
     env = gym.make("VSWrist/Insertion-v0")
     u = env.unwrapped
@@ -540,7 +555,7 @@ def test_probe_term_sums_add_up_to_the_return():
     """The probe's per-term breakdown (``--terms``) accounts for the whole mean return, term by term."""
     import gymnasium as gym
 
-    from vswrist_gym.envs.probe import constant_policy, evaluate
+    from vswrist_gym.tools.probe import constant_policy, evaluate
 
     env = gym.make("VSWrist/Impact-v0")
     terms: dict = {}
@@ -578,9 +593,9 @@ def test_human_render_without_display_fails_cleanly(monkeypatch):
 @pytest.mark.parametrize("task", ["LoadHold", "Impact"])
 def test_loop_closes_in_the_environments_under_the_baseline_at_the_fine_step(task):
     """Inside a task (tool, load, wall) the analytic baseline's smooth references keep the welds below the
-    simulator's 1e-4 bound after every substep with the 0.25 ms preset (python -m vswrist_gym.envs.closure
+    simulator's 1e-4 bound after every substep with the 0.25 ms preset (python -m vswrist_gym.tools.closure
     reports all tasks and random actions, which open them further)."""
-    from vswrist_gym.envs.closure import worst_closure
+    from vswrist_gym.tools.closure import worst_closure
 
     assert worst_closure(task, "reference", "paper_knm_fine", steps=150) < 1e-4  # one whole episode
 

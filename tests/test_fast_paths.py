@@ -8,7 +8,7 @@ import pytest
 
 import vswrist_gym  # noqa: F401  (registers the ids)
 from vswrist_gym.control import AnalyticController, _finite_vector
-from vswrist_gym.envs.base import _sum_sq
+from vswrist_gym.envs.rewards import _sum_sq
 
 
 def _postures(n, seed=0):

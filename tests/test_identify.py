@@ -13,7 +13,7 @@ import test_sim  # noqa: E402  (the simulator's validation checks, reused for th
 
 from vswrist_gym import identify as I  # noqa: E402
 from vswrist_gym.params import load_params  # noqa: E402
-from vswrist_gym.reproduce import PAPER, implied_load_scenario  # noqa: E402
+from vswrist_gym.tools.reproduce import PAPER, implied_load_scenario  # noqa: E402
 
 IDENTIFIED = "paper_identified"
 

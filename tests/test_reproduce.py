@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from vswrist_gym.reproduce import main
+from vswrist_gym.tools.reproduce import main
 
 
 @pytest.fixture(scope="module")

@@ -191,7 +191,9 @@ def test_a_failed_start_leaves_no_half_made_run(tmp_path, sac_config, monkeypatc
 
 
 def test_evaluate_keeps_finished_episodes_when_it_fails(tmp_path, monkeypatch):
-    """An episode that fails after two have finished: both are on disk, identical to a full evaluation's."""
+    """An episode that fails after two have finished: both are on disk, identical to a full evaluation's
+    (episode after episode in one env; the batched path keeps whole seeds, next test)."""
+    monkeypatch.setattr(protocol, "BATCH_EPISODES", False)
     full = evaluate_mod.run("LoadHold", "analytic:0.5", 3, [0], tmp_path / "full")
     assert not (tmp_path / "full" / protocol.PARTIAL_FILE).exists()
     original, calls = protocol.run_episode, []
@@ -212,9 +214,30 @@ def test_evaluate_keeps_finished_episodes_when_it_fails(tmp_path, monkeypatch):
     assert not (tmp_path / "broken" / "metrics.json").exists()
     # the same --out may be used again (it holds only evaluation files), and the rerun completes it
     monkeypatch.undo()
+    monkeypatch.setattr(protocol, "BATCH_EPISODES", False)
     evaluate_mod.run("LoadHold", "analytic:0.5", 3, [0], tmp_path / "broken")
     assert not (tmp_path / "broken" / protocol.PARTIAL_FILE).exists()
 
+
+
+def test_batched_evaluate_keeps_finished_seeds_when_it_fails(tmp_path, monkeypatch):
+    """The batched path (a seed's episodes as one batch) fails on the second seed: the first seed's episodes
+    are on disk, identical to a full evaluation's."""
+    full = evaluate_mod.run("LoadHold", "analytic:0.5", 2, [0, 1], tmp_path / "full")
+    original, calls = protocol.run_episodes_batched, []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("simulation diverged (simulated)")
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(protocol, "run_episodes_batched", failing)
+    with pytest.raises(RuntimeError, match="simulated"):
+        evaluate_mod.run("LoadHold", "analytic:0.5", 2, [0, 1], tmp_path / "broken")
+    _, records = protocol.read_partial(tmp_path / "broken" / protocol.PARTIAL_FILE)
+    done = json.loads((tmp_path / "full" / "metrics.json").read_text())["episodes"]
+    assert len(calls) == 2 and [r["return"] for r in records] == [r["return"] for r in done[:2]]
 
 def test_evaluate_killed_outright_keeps_finished_episodes(tmp_path):
     """SIGKILL during an evaluation: the partial file reads back whole, with every episode finished before."""

@@ -172,7 +172,7 @@ def test_static_stiffness_exhaustive(preset):
 
 
 # --------------------------------------------------------------------------------------- dynamics
-# Loop closure under 10 s of random targets at the largest preload (vswrist_gym.sim_bench.random_reference_run).
+# Loop closure under 10 s of random targets at the largest preload (vswrist_gym.tools.sim_bench.random_reference_run).
 # The opening is chaotic: the motion amplifies rounding, so the same seed on another CPU peaks elsewhere (seed 0
 # of `paper_knm` read 8.7e-5 on the development machine and 1.005e-4 on another of the same kind; here it moves
 # between 7.7e-5 and 1.13e-4 when the preload changes in its 14th digit), within the spread that new seeds give.
@@ -205,7 +205,7 @@ def closure_bound(preset, timestep, mode):
 
 
 def _reference_run(preset, posture_rate):
-    from vswrist_gym.sim_bench import random_reference_run
+    from vswrist_gym.tools.sim_bench import random_reference_run
 
     r = random_reference_run(load_params(preset), posture_rate, seed=0)
     assert r["torque"] <= 1.0 + 1e-12

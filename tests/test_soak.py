@@ -1,10 +1,10 @@
-"""The soak runner (vswrist_gym.envs.soak): a million steps with flat memory (slow), and its checks (fast)."""
+"""The soak runner (vswrist_gym.tools.soak): a million steps with flat memory (slow), and its checks (fast)."""
 
 import numpy as np
 import pytest
 
 from vswrist_gym import TASKS
-from vswrist_gym.envs import soak
+from vswrist_gym.tools import soak
 
 MIB = 1 << 20
 

@@ -2,7 +2,7 @@
 baseline, and an agent that does the task succeeds on some episodes (so each test can fail both ways).
 
 Why N = 10 episodes and these comparisons are enough (2026-12-02, this 2-core dev machine): in
-``python -m vswrist_gym.envs.probe --success --episodes 100`` uniform random and bang-bang actions succeed in none
+``python -m vswrist_gym.tools.probe --success --episodes 100`` uniform random and bang-bang actions succeed in none
 of 100 episodes on any task, and over 100 episodes per agent (a one-off script, the threshold over the metric of
 each task's criterion for the closest episode) they came no closer than 0.16 of the way to a threshold in the
 default mode and 0.37 in the residual mode (Insertion excepted, below): random actions that seat Insertion's pin
@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 import vswrist_gym  # noqa: F401
-from vswrist_gym.envs.probe import adaptive_policy, constant_policy, evaluate, oracle_policy, random_policy
+from vswrist_gym.tools.probe import adaptive_policy, constant_policy, evaluate, oracle_policy, random_policy
 
 N = 10
 SEEDS = range(1000, 1000 + N)

@@ -296,7 +296,7 @@ def test_corrupted_model_file_is_a_clear_error(tmp_path):
 
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory):
-    """`vswrist train` with a tiny budget, 2 SubprocVecEnv workers and VecNormalize (as in configs/ppo.yaml)."""
+    """`vswrist train` with a tiny budget, a batch of 2 worlds and VecNormalize (as in configs/ppo.yaml)."""
     out = tmp_path_factory.mktemp("train") / "ppo_run"
     res = vswrist("train", "--task", TASK, "--algo", "ppo", "--timesteps", "2048", "--seed", "3",
                   "--n-envs", "2", "--out", out)
@@ -317,9 +317,21 @@ def test_train_writes_a_self_describing_run_dir(trained_run):
     assert cfg["hyperparameters"]["n_envs"] == 2
     assert cfg["hyperparameters"]["env_kwargs"]["action_mode"] == "residual"  # from configs/ppo.yaml
     assert list((trained_run / "tb").iterdir()), "no TensorBoard log"
-    assert len(list((trained_run / "monitor").glob("*.monitor.csv"))) == 2  # one per SubprocVecEnv worker
+    logs = list((trained_run / "monitor").glob("*.monitor.csv"))
+    assert len(logs) == 1  # one VecMonitor log for the batch
+    episodes = len(logs[0].read_text().splitlines()) - 2  # a JSON header line and the CSV header
+    assert episodes >= 2 * (2048 // 2 // 150)  # both worlds' episodes of 150 steps (3 s at 50 Hz)
     with np.load(trained_run / "eval" / "evaluations.npz") as ev:
         assert len(ev["timesteps"]) >= 1
+
+
+def test_train_with_a_process_per_env_on_request(tmp_path):
+    out = tmp_path / "subproc_run"
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--timesteps", "256", "--n-envs", "2", "--vec-env",
+                  "subproc", "--out", out)
+    assert res.returncode == 0, res.stderr
+    assert len(list((out / "monitor").glob("*.monitor.csv"))) == 2  # one Monitor per SubprocVecEnv worker
+    assert yaml.safe_load((out / "config.yaml").read_text())["hyperparameters"]["vec_env"] == "subproc"
 
 
 def test_evaluate_a_run_dir_later_and_resume(trained_run, tmp_path):

@@ -52,4 +52,6 @@ def task_name(name: str) -> str:
 for _id, _entry in ENV_IDS.items():
     if _id not in registry:
         # episodes end by truncation inside the environment (episode_s of simulated time), so no TimeLimit
-        register(id=_id, entry_point=_entry)
+        # vector_entry_point: gym.make_vec(id, N) steps N worlds in one process, physics on threads
+        register(id=_id, entry_point=_entry,
+                 vector_entry_point=f"vswrist_gym.envs.batch:{_id.split('/')[1].removesuffix('-v0')}VectorEnv")

@@ -10,11 +10,11 @@ import importlib
 import sys
 
 COMMANDS = {
-    "info": ("vswrist_gym.info:main", "device parameters, stiffness range at home, kinematics self-check"),
-    "bench-sim": ("vswrist_gym.sim_bench:main", "simulator speed: substeps/s, overhead against bare mj_step"),
-    "reproduce": ("vswrist_gym.reproduce:main", "regenerate the paper's section 5 figures and numbers"),
-    "bench-env": ("vswrist_gym.envs.bench:main", "environment speed against Gymnasium's Ant-v5"),
-    "video": ("vswrist_gym.envs.video:main", "write an episode video of an agent on a task"),
+    "info": ("vswrist_gym.tools.info:main", "device parameters, stiffness range at home, kinematics self-check"),
+    "bench-sim": ("vswrist_gym.tools.sim_bench:main", "simulator speed: substeps/s, overhead against bare mj_step"),
+    "reproduce": ("vswrist_gym.tools.reproduce:main", "regenerate the paper's section 5 figures and numbers"),
+    "bench-env": ("vswrist_gym.tools.bench:main", "environment speed against Gymnasium's Ant-v5"),
+    "video": ("vswrist_gym.tools.video:main", "write an episode video of an agent on a task"),
     "view": ("vswrist_gym.tools.view:main", "MuJoCo's interactive viewer on a running episode"),
     "train": ("vswrist_gym.agents.train:main", "train a PPO or SAC policy"),
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),

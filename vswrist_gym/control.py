@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from .params import WristParams, load_params
-from .stiffness import max_leg_torque
+from .stiffness import max_leg_torque, spring_deflection, spring_stiffness_at_torque
 
 _HESSIAN_STEP = 1e-5  # rad; central differences of the closed-form J_a (error ~1e-10 relative)
 
@@ -135,8 +135,11 @@ class AnalyticController:
             g0, g1, g2 = self._min_norm_torques(Ja, self._gravity_from_derivatives(dOc, dxc))
             tmax = self._tau_max
             t0, t1, t2 = min(max(t0 + g0, -tmax), tmax), min(max(t1 + g1, -tmax), tmax), min(max(t2 + g2, -tmax), tmax)
-        K2, d0, asinh = 2.0 * self._K, self._delta0, math.asinh
-        return np.array([q1[0] + d0 * asinh(t0 / K2), q1[1] + d0 * asinh(t1 / K2), q1[2] + d0 * asinh(t2 / K2), ps])
+        # the springs exert exactly tau at theta = q1 - delta(tau)
+        theta = np.empty(4)
+        theta[:3] = q1[:3] - spring_deflection(np.array([t0, t1, t2]), self.params)
+        theta[3] = ps
+        return theta
 
     @property
     def posture_reference(self) -> np.ndarray:
@@ -231,11 +234,9 @@ class AnalyticController:
         """Sigma_c(lam) (2, 2) N m/rad and dSigma_c/dlam, for the spring torques tau = lam N (+ tau_g)."""
         Ja, N, Ha, tg = terms
         tau = lam * N if tg is None else np.clip(lam * N + tg, -self._tau_max, self._tau_max)
-        K2 = 2.0 * self._K
-        x = tau / K2
-        root = np.sqrt(1.0 + x * x)
-        sigma = K2 / self._delta0 * root
-        dsigma = (x / root) / self._delta0 * N
+        x = tau / (2.0 * self._K)
+        sigma = spring_stiffness_at_torque(tau, self.params)
+        dsigma = (x / np.sqrt(1.0 + x * x)) / self._delta0 * N
         S = Ja.T @ (sigma[:, None] * Ja)
         dS = Ja.T @ (dsigma[:, None] * Ja)
         if self.include_load_term:

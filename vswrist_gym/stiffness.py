@@ -3,7 +3,11 @@
 Conventions:
 
 * Spring on leg k: deflection ``delta = q1 - theta`` (link minus motor), torque on the link
-  ``tau_s = -2 K sinh(delta / delta0)``, stiffness ``sigma_s = -d tau_s / d delta = (2K/delta0) cosh(delta/delta0)``.
+  ``tau_s = -2 K sinh(delta / delta0)``, stiffness ``sigma_s = -d tau_s / d delta = (2K/delta0) cosh(delta/delta0)``,
+  energy ``2 K delta0 (cosh(delta/delta0) - 1)``. This module is the spring law's one Python home
+  (``spring_torque``, its inverse ``spring_deflection``, ``spring_stiffness``, ``spring_energy``): the
+  environments, the controller and the reproduction call it; the compiled per-substep kernel
+  (``model.native``) is tested against it.
 * Internal torque: spring torques ``tau_s = lambda N`` with N = ``WristKinematics.internal_torque_basis``
   (unit norm, J_a^T N = 0, negative components). They balance each other through the mechanism and leave
   the posture unchanged.
@@ -47,6 +51,13 @@ def spring_deflection(tau, params: WristParams | str | None = None):
     """Inverse of ``spring_torque``: the deflection (rad) at which the spring exerts tau (N m)."""
     s = _spring(params)
     return -s.delta0 * np.arcsinh(np.asarray(tau, dtype=float) / (2.0 * s.K))
+
+
+def spring_energy(delta, params: WristParams | str | None = None):
+    """Energy stored in the spring (J) at deflection delta (rad): the integral of -tau_s from 0 to delta,
+    2 K delta0 (cosh(delta/delta0) - 1)."""
+    s = _spring(params)
+    return 2.0 * s.K * s.delta0 * (np.cosh(np.asarray(delta, dtype=float) / s.delta0) - 1.0)
 
 
 def spring_stiffness_at_torque(tau, params: WristParams | str | None = None):

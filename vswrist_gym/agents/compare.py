@@ -98,8 +98,13 @@ def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: b
                 cmd.append("--resume")
             p["run_dir"].parent.mkdir(parents=True, exist_ok=True)
             fh = open(p["run_dir"].with_suffix(".log"), "w")
+            # concurrent trainings share the cores: each batch gets its share of physics threads
+            from vswrist_gym.envs.batch import THREADS_ENV, default_threads
+
+            child_env = {**os.environ, THREADS_ENV: str(max(1, default_threads() // jobs))}
             log(f"[{p['algo']} seed {p['seed']}] {p['action']} to {p['wanted']} steps -> {p['run_dir']} (subprocess)")
-            running.append((p, subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT), time.time(), fh))
+            running.append((p, subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=child_env), time.time(),
+                            fh))
         time.sleep(0.2)
         for item in list(running):
             p, proc, start, fh = item

@@ -34,7 +34,7 @@ RUN_SECTION = "vswrist"  # the top-level section of run settings that RL Zoo has
 # Keys of an RL Zoo entry that configure the run rather than the algorithm, with their meaning.
 ZOO_RUN_KEYS = {
     "n_timesteps": "total environment steps of training (int > 0)",
-    "n_envs": "parallel environments (int > 0); more than one uses SubprocVecEnv unless vec_env says otherwise",
+    "n_envs": "parallel environments (int > 0), run as the section's vec_env says",
     "policy": "stable-baselines3 policy class name (MlpPolicy)",
     "normalize": "false, true, or VecNormalize options as a mapping or a dict(...) string (norm_obs, norm_reward, "
                  "clip_obs, clip_reward, epsilon)",
@@ -44,7 +44,8 @@ ZOO_RUN_KEYS = {
 }
 # Run settings RL Zoo takes as command-line flags (in brackets): in the file's `vswrist:` section.
 SECTION_KEYS = {
-    "vec_env": "'subproc' or 'dummy': how the n_envs environments are run (rl_zoo3 --vec-env)",
+    "vec_env": "'batch' (default: one process, physics on threads), 'subproc' or 'dummy': how the n_envs "
+               "environments are run (rl_zoo3 --vec-env takes subproc or dummy)",
     "eval_freq": "environment steps between periodic evaluations (int > 0; at most half the run) (rl_zoo3 --eval-freq)",
     "n_eval_episodes": "episodes per periodic evaluation (int > 0) (rl_zoo3 --eval-episodes)",
     "checkpoint_freq": "environment steps between checkpoints (int > 0) (rl_zoo3 --save-freq)",
@@ -99,6 +100,7 @@ class RunConfig:
         out = copy.deepcopy(self.raw)
         out["n_timesteps"] = self.n_timesteps
         out["n_envs"] = self.n_envs
+        out["vec_env"] = self.vec_env
         return out
 
 
@@ -172,8 +174,10 @@ def zoo_train_args(algo: str, env_id: str, path: str | Path | None = None) -> li
     log folder and device left to the caller): the run settings of the `vswrist:` section as RL Zoo's flags."""
     path = Path(path) if path is not None else default_config_path(algo)
     cfg = load_config(algo, env_id, path)
+    # RL Zoo has no batched vec env; its DummyVecEnv also keeps every world in one process.
+    vec_env = "dummy" if cfg.vec_env == "batch" else cfg.vec_env
     return ["--algo", algo, "--env", env_id, "--gym-packages", "vswrist_gym", "--conf-file", str(path),
-            "--vec-env", cfg.vec_env, "--eval-freq", str(cfg.eval_freq), "--eval-episodes", str(cfg.n_eval_episodes),
+            "--vec-env", vec_env, "--eval-freq", str(cfg.eval_freq), "--eval-episodes", str(cfg.n_eval_episodes),
             "--save-freq", str(cfg.checkpoint_freq)]
 
 
@@ -290,6 +294,9 @@ def parse_policy_kwargs(value: Any) -> dict:
     return out
 
 
+VEC_ENVS = ("batch", "subproc", "dummy")
+
+
 def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunConfig:
     """Check and split one entry; every key is consumed here or validated against the algorithm's constructor."""
     cls = algo_class(algo)
@@ -297,9 +304,9 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
     entry = copy.deepcopy(entry)
     n_timesteps = _positive_int(entry, "n_timesteps")
     n_envs = _positive_int(entry, "n_envs", 1)
-    vec_env = entry.pop("vec_env", "subproc")
-    if vec_env not in ("subproc", "dummy"):
-        raise ConfigError(f"'vec_env' must be 'subproc' or 'dummy', got {vec_env!r}")
+    vec_env = entry.pop("vec_env", "batch")
+    if vec_env not in VEC_ENVS:
+        raise ConfigError(f"'vec_env' must be one of {list(VEC_ENVS)}, got {vec_env!r}")
     policy = entry.pop("policy", "MlpPolicy")
     if policy != "MlpPolicy":
         raise ConfigError(f"'policy' must be 'MlpPolicy' (the observations are flat vectors), got {policy!r}")

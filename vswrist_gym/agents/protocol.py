@@ -78,15 +78,55 @@ def _info_value(info: dict, key: str) -> float:
     return float(np.asarray(value, dtype=float).reshape(-1)[0]) if np.size(value) == 1 else float(np.linalg.norm(value))
 
 
+class _Episode:
+    """The metric record and trace of one episode, built step by step (the same for a single env and a world of
+    a batch)."""
+
+    def __init__(self, dt: float):
+        self.dt, self.trace = dt, Trace()
+        self.total, self.steps, self.success, self.peak = 0.0, 0, math.nan, math.nan
+        self.energies: list[float] = []
+
+    def add(self, reward: float, info: dict, done: bool) -> None:
+        trace = self.trace
+        self.steps += 1
+        self.total += float(reward)
+        trace.time.append(self.steps * self.dt)
+        trace.posture_error.append(_info_value(info, "posture_error"))
+        trace.contact_force.append(_info_value(info, "contact_force"))
+        trace.lam.append(_info_value(info, "lam"))
+        trace.reward.append(float(reward))
+        self.energies.append(_info_value(info, "elastic_energy"))
+        p = _info_value(info, "peak_contact_force")
+        if not math.isnan(p):
+            self.peak = p if math.isnan(self.peak) else max(self.peak, p)
+        if done and "is_success" in info:
+            self.success = float(bool(info["is_success"]))
+
+    def record(self) -> tuple[dict, Trace]:
+        trace, peak = self.trace, self.peak
+        force = np.asarray(trace.contact_force)
+        if not np.all(np.isnan(force)):
+            peak = float(np.nanmax(np.append(force, peak)))
+        record = {
+            "return": self.total,
+            "success": self.success,
+            "rms_posture_error": float(np.sqrt(np.mean(np.square(trace.posture_error)))),
+            "peak_contact_force": peak,
+            "rms_contact_force": float(np.sqrt(np.mean(np.square(force)))),
+            "elastic_energy": float(np.mean(self.energies)),
+            "stiffness_used": float(np.mean(trace.lam)),
+            "length": float(self.steps),
+        }
+        return record, trace
+
+
 def run_episode(env, agent, seed: int, frames: list | None = None) -> tuple[dict, Trace]:
     """Run one episode deterministically; returns the metric record and the trace."""
     obs, info = env.reset(seed=seed)
     dt = float(getattr(env.unwrapped, "ctrl_dt", None) or getattr(env.unwrapped, "dt", 1.0))  # control period, s
-    trace = Trace()
-    total, steps, success = 0.0, 0, math.nan
-    peak = math.nan
+    ep = _Episode(dt)
     state, episode_start = None, np.ones((1,), dtype=bool)
-    energies = []
     if frames is not None:
         frames.append(env.render())
     while True:
@@ -95,41 +135,52 @@ def run_episode(env, agent, seed: int, frames: list | None = None) -> tuple[dict
         obs, reward, terminated, truncated, info = env.step(action)
         if frames is not None:
             frames.append(env.render())
-        steps += 1
-        total += float(reward)
-        trace.time.append(steps * dt)
-        trace.posture_error.append(_info_value(info, "posture_error"))
-        trace.contact_force.append(_info_value(info, "contact_force"))
-        trace.lam.append(_info_value(info, "lam"))
-        trace.reward.append(float(reward))
-        energies.append(_info_value(info, "elastic_energy"))
-        p = _info_value(info, "peak_contact_force")
-        if not math.isnan(p):
-            peak = p if math.isnan(peak) else max(peak, p)
+        ep.add(reward, info, terminated or truncated)
         if terminated or truncated:
-            if "is_success" in info:
-                success = float(bool(info["is_success"]))
             break
-    force = np.asarray(trace.contact_force)
-    if not np.all(np.isnan(force)):
-        peak = float(np.nanmax(np.append(force, peak)))
-    record = {
-        "return": total,
-        "success": success,
-        "rms_posture_error": float(np.sqrt(np.mean(np.square(trace.posture_error)))),
-        "peak_contact_force": peak,
-        "rms_contact_force": float(np.sqrt(np.mean(np.square(force)))),
-        "elastic_energy": float(np.mean(energies)),
-        "stiffness_used": float(np.mean(trace.lam)),
-        "length": float(steps),
-    }
-    return record, trace
+    return ep.record()
+
+
+def run_episodes_batched(venv, agent, first_seed: int) -> list[tuple[dict, Trace]]:
+    """One episode in every world of a VS-Wrist batch (``gym.make_vec``), world i from seed ``first_seed + i``:
+    the same records as ``run_episode`` on ``gym.make`` with those seeds, the policy queried once per step for
+    all worlds. A world that has ended is reset by the batch and its further steps are ignored."""
+    n = venv.num_envs
+    obs, _ = venv.reset(seed=first_seed)
+    eps = [_Episode(float(venv.unwrapped.envs[0].ctrl_dt)) for _ in range(n)]
+    active = np.ones(n, dtype=bool)
+    state, episode_start = None, np.ones(n, dtype=bool)
+    while active.any():
+        action, state = agent.predict(obs, state=state, episode_start=episode_start, deterministic=True)
+        episode_start = np.zeros(n, dtype=bool)
+        obs, reward, terminated, truncated, info = venv.step(action)
+        done = terminated | truncated
+        for i in np.flatnonzero(active):
+            world = {k: v[i] for k, v in info.items() if not k.startswith("_") and info.get(f"_{k}", active)[i]}
+            eps[i].add(reward[i], world, bool(done[i]))
+            if done[i]:
+                active[i] = False
+    return [ep.record() for ep in eps]
+
+
+BATCH_EPISODES = True  # evaluate's default: the episodes of a seed as the worlds of one batch
+
+
+def _batchable(env_id: str) -> bool:
+    import gymnasium as gym
+
+    spec = gym.registry.get(env_id)
+    return spec is not None and env_id.startswith("VSWrist/") and spec.vector_entry_point is not None
 
 
 def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | None = None,
              trace_episode: tuple[int, int] | None = None, video_path: str | Path | None = None,
-             progress=None, on_record=None) -> tuple[list[dict], dict | None]:
+             progress=None, on_record=None, batch: bool | None = None) -> tuple[list[dict], dict | None]:
     """Evaluate one agent under the protocol; returns per-episode records and the requested episode's trace.
+
+    With ``batch`` (default ``BATCH_EPISODES``) the episodes of one seed run as the worlds of one VS-Wrist batch
+    (``gym.make_vec``), the same episodes as one ``gym.make`` env run episode after episode; their records
+    then arrive (and are saved) seed by seed.
 
     `make_agent(env)` builds the agent for an environment (the analytic agent needs it; a trained one ignores it).
     `on_record(records)` is called with the records so far after every episode (to save them as they come).
@@ -141,12 +192,17 @@ def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | N
     seeds = check_eval_seeds(seeds, episodes)
     env_kwargs = dict(env_kwargs or {})
     env = gym.make(env_id, **env_kwargs)
+    venv = None
     try:
         agent = make_agent(env)
         records, trace = [], None
+        if (BATCH_EPISODES if batch is None else batch) and episodes > 1 and _batchable(env_id):
+            venv = gym.make_vec(env_id, num_envs=episodes, vectorization_mode="vector_entry_point", **env_kwargs)
         for s in seeds:
-            for i in range(episodes):
-                rec, tr = run_episode(env, agent, reset_seed(s, i))
+            # reset_seed(s, i) = reset_seed(s, 0) + i: world i of a batch seeded reset_seed(s, 0) is episode i
+            runs = run_episodes_batched(venv, agent, reset_seed(s, 0)) if venv is not None else \
+                (run_episode(env, agent, reset_seed(s, i)) for i in range(episodes))
+            for i, (rec, tr) in enumerate(runs):
                 records.append({"seed": s, "episode": i, "reset_seed": reset_seed(s, i), **rec})
                 if trace_episode == (s, i):
                     trace = tr.to_dict()
@@ -156,6 +212,8 @@ def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | N
                     progress()
     finally:
         env.close()
+        if venv is not None:
+            venv.close()
     if video_path is not None:
         write_video(env_id, make_agent, env_kwargs, reset_seed(seeds[0], 0), Path(video_path))
     return records, trace

@@ -288,9 +288,31 @@ def check_env_kwargs(env_id: str, env_kwargs: dict) -> None:
 
 
 def make_vec_env(cfg: RunConfig, n_envs: int, seed: int, monitor_dir: Path | None = None, prefix: str = "train"):
-    """The configured VecEnv (SubprocVecEnv when n_envs > 1 and vec_env is 'subproc'), seeded seed, seed+1, ..."""
+    """The configured VecEnv, seeded seed, seed+1, ...: for VS-Wrist ids with ``vec_env: batch`` (the default) all
+    worlds in this process (``agents.vec_env.BatchVecEnv``, physics on threads, one ``VecMonitor`` log);
+    otherwise SubprocVecEnv when n_envs > 1 and vec_env is 'subproc' ('batch' on another id means the same),
+    else DummyVecEnv (a Monitor log per env)."""
+    import gymnasium as gym
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+    spec = gym.registry.get(cfg.env_id)
+    if cfg.vec_env == "batch" and spec is not None and cfg.env_id.startswith("VSWrist/") \
+            and spec.vector_entry_point is not None:
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        from .vec_env import BatchVecEnv
+
+        if "torch" in sys.modules:
+            limit_threads(1)
+        venv = BatchVecEnv(cfg.env_id, n_envs, cfg.env_kwargs)
+        mon = None
+        if monitor_dir is not None:
+            monitor_dir.mkdir(parents=True, exist_ok=True)
+            mon = str(monitor_dir / f"{prefix}_batch")
+        venv = VecMonitor(venv, filename=mon)
+        venv.seed(seed)
+        venv.action_space.seed(seed)
+        return venv
     fns = []
     for rank in range(n_envs):
         mon = None
@@ -298,7 +320,7 @@ def make_vec_env(cfg: RunConfig, n_envs: int, seed: int, monitor_dir: Path | Non
             monitor_dir.mkdir(parents=True, exist_ok=True)
             mon = str(monitor_dir / f"{prefix}_{rank}")
         fns.append(EnvFactory(cfg.env_id, cfg.env_kwargs, mon))
-    if n_envs > 1 and cfg.vec_env == "subproc":
+    if n_envs > 1 and cfg.vec_env in ("subproc", "batch"):
         venv = SubprocVecEnv(fns, start_method="forkserver")
     else:
         venv = DummyVecEnv(fns)

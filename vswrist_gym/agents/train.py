@@ -166,7 +166,7 @@ def _remove_half_made(run_dir: Path, root: Path | None) -> None:
 
 def train(task: str, algo: str, out: str | Path, config: str | Path | None = None, timesteps: int | None = None,
           seed: int = 0, n_envs: int | None = None, resume: bool = False, progress: bool = True,
-          argv: list[str] | None = None, torch_threads: int = 1, log=print) -> Path:
+          argv: list[str] | None = None, torch_threads: int = 1, log=print, vec_env: str | None = None) -> Path:
     """Train (or resume) one run; returns the run directory. Raises ConfigError / RunDirError on bad input,
     before anything is written; a new run that fails to start leaves nothing behind."""
     run_dir = Path(out)
@@ -185,10 +185,10 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
         if cfg.env_id != env_id or cfg.algo != algo:
             raise RunDirError(f"{run_dir} holds a {cfg.algo.upper()} run on {cfg.env_id}, "
                               f"not {algo.upper()} on {env_id}")
-        cfg = override(cfg, n_timesteps=timesteps, n_envs=n_envs)
+        cfg = override(cfg, n_timesteps=timesteps, n_envs=n_envs, vec_env=vec_env)
         note_ended_invocation(run_dir, log)
     else:
-        cfg = override(load_config(algo, env_id, config), n_timesteps=timesteps, n_envs=n_envs)
+        cfg = override(load_config(algo, env_id, config), n_timesteps=timesteps, n_envs=n_envs, vec_env=vec_env)
         check_env_kwargs(cfg.env_id, cfg.env_kwargs)
         created = created_root(run_dir)
     prefix = f"train_{int(time.time())}"
@@ -291,6 +291,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timesteps", type=int, help="total training steps (overrides n_timesteps)")
     p.add_argument("--seed", type=int, default=0, help="seed of the model and of the training environments")
     p.add_argument("--n-envs", type=int, help="parallel environments (overrides n_envs)")
+    p.add_argument("--vec-env", choices=("batch", "subproc", "dummy"),
+                   help="how the environments run (overrides vec_env; default batch: one process, physics on "
+                        "threads)")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -312,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
         _positive("--torch-threads", args.torch_threads)
         run_dir = train(args.task, args.algo, args.out, config=args.config, timesteps=args.timesteps,
                         seed=args.seed, n_envs=args.n_envs, resume=args.resume, progress=not args.no_progress,
-                        argv=argv, torch_threads=args.torch_threads)
+                        argv=argv, torch_threads=args.torch_threads, vec_env=args.vec_env)
     except (ConfigError, RunDirError) as exc:
         print(f"vswrist train: error: {exc}", file=sys.stderr)
         return 2

@@ -36,14 +36,13 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from ..params import load_params
-from .config import SCALE_TERMS, EnvConfigError, load_env_config, validate_task
-from ._contact import CONTACT_SOLREF
-from .spaces import ObsTerm, PostureMap, StiffnessMap, check_action, wrap_angle
-
-DEVICE_TERMS = ("spring_K", "spring_delta0", "motor_time_constant", "link_mass", "hand_mass", "damping")
-COMMON_REWARD_TERMS = ("tracking", "energy", "action_rate", "termination")
-FORCE_CAP = 10.0  # force penalties saturate at FORCE_CAP x scales.force: one violent contact sample (rigid
-                  # contacts driven by stiff servos reach kN for a step) must not swamp a whole episode
+from ..stiffness import spring_energy
+from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
+from .config import EnvConfigError, load_env_config, validate_task
+from .observations import ObservationsMixin
+from .randomization import RandomizationMixin
+from .rewards import COMMON_REWARD_TERMS, RewardsMixin, wrap_angle
+from .shared import SceneMixin
 
 
 def _import_sim():
@@ -62,20 +61,34 @@ def _import_controller():
     return AnalyticController
 
 
-def _sum_sq(x: np.ndarray) -> float:
-    """float(np.sum(x ** 2)) for the short vectors of the reward (numpy sums fewer than 8 terms in order)."""
-    s = 0.0
-    for v in (x * x).tolist():
-        s += v
-    return s
-
-
-class VSWristEnv(gym.Env):
+class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMixin, SceneMixin, gym.Env):
     """Base class of every VS-Wrist task (do not instantiate directly; use ``gymnasium.make``).
 
-    Subclasses set ``task`` (the config file stem), ``task_spec`` (validation of the ``task`` section),
-    ``task_reward_terms`` and implement ``_scene``, ``_task_reset``, ``_reference``, ``_task_reward_terms``,
-    ``_success``; optionally ``_before_physics``, ``_contact_force``, ``_task_obs_terms``.
+    How to write a task (``load_hold.py`` is the shortest example): a module ``envs/<task>.py`` with a subclass
+    and a config ``configs/envs/<task>.yaml`` (its ``task:`` section), registered in ``vswrist_gym.ENV_IDS``
+    (which also gives it ``gym.make_vec``). The subclass sets
+
+    * ``task`` (the config file stem), ``task_id``, ``summary``, ``success_text`` (formatted with the task
+      settings), ``task_spec`` (name -> ("number" | "interval" | "int_interval", lo, hi): validation of the
+      ``task`` section, read as ``self.tp``), ``task_reward_terms`` (names of its extra reward terms),
+      ``reads_sensors`` (False if it reads only poses: a cheaper update after each step);
+
+    and implements the hooks, each for one world (``self`` is the world; a batch calls them world by world, so
+    they may keep episode state on ``self`` and draw only from the ``rng`` they are given):
+
+    * ``_scene(spec)``: add geometry to the MjSpec before compilation (``SceneMixin`` helpers in ``shared``:
+      ``_add_tool_geom``, ``_add_touch_sensor``, ``add_mocap_box_body``); ``_scene_ids()``: look up ids after;
+    * ``_task_reset(rng) -> (u (2,), ps, stiffness command)``: sample the episode; ``_after_reset()``: place
+      objects once the wrist stands at its initial posture (``tool_point``);
+    * ``_reference(t) -> (3,)``: the posture reference (RUD, FE, PS) at time t (s);
+    * ``_before_physics(t)``: external loads for the coming period (``self.sim.apply_wrench``);
+    * ``_contact_force() -> float`` (N, after a step), ``_tracking_error(err)`` (the part of the error the
+      tracking reward counts), ``_task_reward_terms(err) -> {name: unweighted value}``, ``_success() -> bool``
+      (at the episode's last step, from ``self._history``), optionally ``_task_obs_terms()`` and
+      ``_validate_task()``.
+
+    Everything else (actions, observations, noise, randomisation, rewards, info, divergence, rendering,
+    pickling, batching) comes from the base and its mixins and needs no task code.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
@@ -126,6 +139,8 @@ class VSWristEnv(gym.Env):
         self.params = self.nominal_params
         self.ctrl_dt = cfg["ctrl_dt"]
         self._closure_warn, self._closure_truncate = cfg["closure_warn"], cfg["closure_truncate"]
+        # neither the task nor the observation reads sensors: a step updates only poses and velocities
+        self._light_sync = not (self.reads_sensors or "tool_wrench" in cfg["observation"])
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.ctrl_dt)))
 
         self._WristSim = _import_sim()
@@ -213,172 +228,9 @@ class VSWristEnv(gym.Env):
     def _scene_ids(self) -> None:
         """Look up the task's model elements after (re)compilation (override in tasks)."""
 
-    def _lam_max(self) -> float:
-        """Smallest reachable upper bound of lam over a grid of the range of motion (N m)."""
-        rom = self.nominal_params.range_of_motion
-        his = [self.ctrl.lambda_range(np.array([a, b]))[1]
-               for a in np.linspace(rom.rud_min, rom.rud_max, 5) for b in np.linspace(rom.fe_min, rom.fe_max, 5)]
-        self._lam_hi_max = float(max(his))
-        return float(min(his))
-
-    def _motor_range(self) -> tuple[np.ndarray, np.ndarray]:
-        """Motor reference range for mode ``motor``: leg angles over the range of motion +- the deflection limit."""
-        from ..kinematics import WristKinematics
-        rom = self.nominal_params.range_of_motion
-        kin = WristKinematics(self.nominal_params)
-        q1 = np.array([kin.joint_angles(np.array([a, b]))[0::4]
-                       for a in np.linspace(rom.rud_min, rom.rud_max, 7)
-                       for b in np.linspace(rom.fe_min, rom.fe_max, 7)])
-        dl = self.nominal_params.spring.deflection_limit
-        lo = np.append(q1.min(axis=0) - dl, rom.ps_min)
-        hi = np.append(q1.max(axis=0) + dl, rom.ps_max)
-        return lo, hi
-
-    # ------------------------------------------------------------------ observation terms
-    def _obs_terms(self) -> dict[str, ObsTerm]:
-        """Every observation term this task offers, with physical bounds (see ``ObsTerm``)."""
-        n_act = self.action_space.shape[0]
-        p = self.nominal_params
-        dl, K2, d0 = p.spring.deflection_limit, 2.0 * p.spring.K, p.spring.delta0
-        tau_bound = K2 * math.sinh(1.25 * dl / d0)
-        lam_bound = 2.0 * self._lam_hi_max
-        sig_bound = 10.0 * K2 / d0 * math.sqrt(1.0 + (tau_bound / K2) ** 2)
-        half_pi, two_pi = 0.5 * math.pi, 2.0 * math.pi
-        pl, ph = self.posture_map.lo, self.posture_map.hi
-        terms = [
-            ObsTerm("posture", 3, "rad", "measured RUD, FE, PS (with sensor noise)", self._obs_posture,
-                    np.array([-half_pi, -half_pi, -two_pi]), np.array([half_pi, half_pi, two_pi])),
-            ObsTerm("posture_rate", 3, "rad/s", "d/dt of the posture (with sensor noise)", self._obs_posture_rate,
-                    -100.0, 100.0),
-            ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", lambda: self.sim.motor_angles(),
-                    -two_pi, two_pi),
-            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", lambda: self._defl,
-                    -math.pi, math.pi),
-            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", self._obs_spring_torques,
-                    -tau_bound, tau_bound),
-            ObsTerm("stiffness", 3, "N m/rad", "coupler stiffness of the springs as they are, "
-                    "J_a^T diag(sigma_s(delta)) J_a at the measured posture (RUD-RUD, RUD-FE, FE-FE; "
-                    "paper's formula, no load term)",
-                    self._obs_stiffness, -sig_bound, sig_bound),
-            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: self.ctrl.lam,
-                    -lam_bound, lam_bound),
-            ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action, -1.0, 1.0),
-            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target, pl, ph),
-            ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)",
-                    self._obs_wrench, np.array([-1e4] * 3 + [-1e3] * 3), np.array([1e4] * 3 + [1e3] * 3)),
-            ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (Insertion: the "
-                    "hole's walls and chamfers, not the fit plate) (with noise)",
-                    self._obs_contact, 0.0, 1e5),
-            ObsTerm("phase", 1, "-", "elapsed fraction of the episode",
-                    lambda: self._step / self.episode_steps, 0.0, 1.0),
-        ]
-        out = {t.name: t for t in terms}
-        for t in self._task_obs_terms():
-            out[t.name] = t
-        return out
-
-    def _task_obs_terms(self) -> list[ObsTerm]:
-        return []
-
-    # sensor noise: one draw per observation, laid out as posture(3) posture_rate(3) force(3) torque(3) contact(1)
-    _NOISE_LAYOUT = ("posture",) * 3 + ("posture_rate",) * 3 + ("force",) * 3 + ("torque",) * 3 + ("force",)
-
-    def _draw_noise(self) -> None:
-        self._nz = None if self._noise_std is None else self.np_random.normal(0.0, 1.0, 13) * self._noise_scale
-
-    def _obs_posture(self):
-        return self._posture if self._nz is None else self._posture + self._nz[0:3]
-
-    def _obs_posture_rate(self):
-        r = self.sim.posture_rate()
-        return r if self._nz is None else r + self._nz[3:6]
-
-    def _obs_wrench(self):
-        w = self.sim.tool_wrench()
-        return w if self._nz is None else w + self._nz[6:12]
-
-    def _obs_contact(self):
-        c = self._contact if self._nz is None else self._contact + self._nz[12]
-        return c if c > 0.0 else 0.0  # a touch sensor never reads a pull
-
-    def _obs_spring_torques(self):
-        s = self.params.spring
-        return -2.0 * s.K * np.sinh(self._defl / s.delta0)
-
-    def _obs_stiffness(self):
-        """The paper's J_a^T Sigma_s J_a from the measured deflections: the stiffness the springs give now
-        (loads included), cheap (closed-form J_a, no Hessian); the ~13 % load term is left out."""
-        # the posture is finite here (``step`` ends the episode otherwise), so skip kinematics_at's checks
-        ay, az = self._posture_list[0], self._posture_list[1]
-        _, Ja = self.ctrl._q1_ja(ay, az)
-        s = self.params.spring
-        c, d0 = 2.0 * s.K / s.delta0, s.delta0
-        s00 = s01 = s11 = 0.0
-        for (a, b), dk in zip(Ja, self._defl_list):
-            sig = c * math.cosh(dk / d0)
-            s00 += sig * a * a
-            s01 += sig * a * b
-            s11 += sig * b * b
-        return (s00, s01, s11)
-
-    def _raw_observation(self) -> np.ndarray:
-        """All terms written into one new float64 array (so no term is ever a view of simulator memory)."""
-        obs = np.empty(self.obs_size)
-        for a, b, fn in self._obs_plan:
-            obs[a:b] = fn()
-        return obs
-
-    def _observation(self):
-        self._draw_noise()
-        obs = self._raw_observation()
-        # np.clip(obs, low, high) without its Python-level dispatch (same values, NaN passes through)
-        np.maximum(obs, self._obs_low, out=obs)
-        np.minimum(obs, self._obs_high, out=obs)
-        obs = obs.astype(np.float32)
-        if self.cfg["obs_mode"] == "dict":
-            return {t.name: obs[self.obs_slices[t.name]].copy() for t in self.obs_terms}
-        return obs
-
-    # ------------------------------------------------------------------ actions
-    def reference_to_action(self, posture_ref, stiffness: float) -> np.ndarray:
-        """The ``posture_stiffness`` action (4,) that commands ``posture_ref`` (RUD, FE, PS; rad) with
-        stiffness command ``stiffness`` in [-1, 1]: the inverse of that mode's mapping."""
-        s = float(stiffness)
-        if not (math.isfinite(s) and -1.0 <= s <= 1.0):
-            raise ValueError(f"stiffness command must be in [-1, 1], got {stiffness!r}")
-        ref = np.asarray(posture_ref, dtype=float)
-        if ref.shape != (3,) or not np.isfinite(ref).all():
-            raise ValueError(f"posture_ref must be 3 finite angles (RUD, FE, PS) in rad, got {posture_ref!r}")
-        return np.append(self.posture_map.to_command(ref), s).astype(np.float32)
-
     def success_description(self) -> str:
         """The success criterion in words, with this instance's numbers."""
         return self.success_text.format(**{k: v for k, v in self.tp.items() if not isinstance(v, tuple)})
-
-    def lam_to_stiffness_command(self, lam: float) -> float:
-        """The stiffness command in [-1, 1] that maps to internal torque ``lam`` (N m), clipped to [0, lam_max]."""
-        return self.stiffness_map.to_command(lam)
-
-    def _motor_refs(self, a: np.ndarray) -> np.ndarray:
-        mode = self.cfg["action_mode"]
-        if mode == "motor":
-            return self._motor_lo + 0.5 * (a + 1.0) * (self._motor_hi - self._motor_lo)
-        if mode == "posture_stiffness":
-            ref = self.posture_map.to_posture(a[:3])
-            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(a[3]))
-        if mode == "residual":
-            r = self.cfg["residual"]
-            ref = self.posture_map.clip(self._target + r["posture_scale"] * a[:3])
-            s = r["stiffness_nominal"] + r["stiffness_scale"] * a[3]
-            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(s))
-        # posture_compliance: diagonal compliances log-mapped, off-diagonal as a correlation in (-0.9, 0.9)
-        c = self.cfg["compliance"]
-        ref = self.posture_map.to_posture(a[:3])
-        lc = np.log(c["min"]) + 0.5 * (a[3:5] + 1.0) * (np.log(c["max"]) - np.log(c["min"]))
-        d = np.exp(lc)
-        off = 0.9 * a[5] * math.sqrt(d[0] * d[1])
-        C = np.array([[d[0], off], [off, d[1]]])
-        return self.ctrl.step(ref, compliance_ref=C)
 
     # ------------------------------------------------------------------ episode
     def _reset_state(self) -> None:
@@ -400,44 +252,6 @@ class VSWristEnv(gym.Env):
         self._latency = 0.0
         self._theta_prev = None
         self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
-
-    def _randomize(self) -> None:
-        rnd = self.cfg["randomize"]
-        rng = self.np_random
-
-        def factor(term):
-            spec = rnd[term]
-            return float(rng.uniform(*spec["range"])) if spec["enabled"] else 1.0
-
-        if any(rnd[t]["enabled"] for t in DEVICE_TERMS):
-            p = self.nominal_params
-            f = {t: factor(t) for t in DEVICE_TERMS}
-            params = p.replace(
-                spring={"K": p.spring.K * f["spring_K"], "delta0": p.spring.delta0 * f["spring_delta0"]},
-                motor={"time_constant": p.motor.time_constant * f["motor_time_constant"]},
-                inertia={"link_mass": [m * f["link_mass"] for m in p.inertia.link_mass],
-                         "link_inertia": [i * f["link_mass"] for i in p.inertia.link_inertia],
-                         "hand_mass": p.inertia.hand_mass * f["hand_mass"]},
-                damping={"leg_joint": p.damping.leg_joint * f["damping"],
-                         "ps_joint": p.damping.ps_joint * f["damping"]})
-            self._close_renderer()
-            self._build_sim(params)
-        ft = factor("tool_mass")
-        self.model.body_mass[self._tool_body] = self._nominal_tool_mass * ft
-        self.model.body_inertia[self._tool_body] = self._nominal_tool_inertia * ft
-        ff = factor("friction")
-        if self._task_geoms.size:
-            self.model.geom_friction[self._task_geoms] = self._nominal_friction * ff
-        lat = rnd["latency"]
-        # latency in whole physics steps, at most one step short of the control period
-        dt = float(self.model.opt.timestep)
-        steps = int(round(float(rng.uniform(*lat["range"])) / dt)) if lat["enabled"] else 0
-        self._latency = min(steps, self.n_substeps - 1) * dt
-        noise = rnd["sensor_noise"]
-        self._noise_std = {k: float(noise[k]) for k in ("posture", "posture_rate", "force", "torque")} \
-            if noise["enabled"] else None
-        if self._noise_std is not None:
-            self._noise_scale = np.array([self._noise_std[k] for k in self._NOISE_LAYOUT])
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -469,11 +283,25 @@ class VSWristEnv(gym.Env):
             raise ResetNeeded("step() called after the episode ended (terminated or truncated) or before the "
                               "first reset(); call reset() to start an episode")
         a = check_action(action, self.action_space.shape)
+        self._begin_step(a)
+        self._advance()
+        return self._finish_step()
+
+    # One step in three phases, so that a batch (``batch.VSWristVectorEnv``) runs the physics of all its worlds
+    # together (on threads) between the Python phases: ``_begin_step`` (action -> motor references, task loads),
+    # ``_advance`` (the physics only: touches nothing but this world's MjModel/MjData, so worlds may advance
+    # concurrently) and ``_finish_step`` (measures, reward, observation, info).
+    def _begin_step(self, a: np.ndarray) -> None:
+        """``a``: a checked action (``check_action``); clipped here to [-1, 1]."""
         a = np.maximum(a, -1.0)  # = np.clip(a, -1, 1) (a is finite), a new array: the caller's is untouched
         np.minimum(a, 1.0, out=a)
-        theta = self._motor_refs(a)
+        self._a = a
+        self._theta = self._motor_refs(a)
         self._before_physics(self._t)
-        failure = None
+
+    def _advance(self) -> None:
+        theta = self._theta
+        self._failure = None
         try:
             if self._latency > 0.0 and self._theta_prev is not None:
                 self.sim.step(self._latency)
@@ -483,8 +311,18 @@ class VSWristEnv(gym.Env):
                 self.sim.set_motor_references(theta)
                 self.sim.step(self.ctrl_dt)
         except self._SimulationError as exc:
-            failure = str(exc)
-        self._theta_prev = theta
+            self._failure = str(exc)
+            return
+        # bring what ``_measure`` reads up to date here, so that in a batch this C work runs on the threads too
+        # (the same calls ``_measure`` would make; they find nothing stale afterwards)
+        if self._light_sync:
+            self.sim.sync_kinematics()
+        else:
+            self.sim.sync()
+
+    def _finish_step(self):
+        a, failure = self._a, self._failure
+        self._theta_prev = self._theta
         self._step += 1
         self._t = self._step * self.ctrl_dt
         self._measure()
@@ -504,22 +342,10 @@ class VSWristEnv(gym.Env):
         self._sum_contact_sq += self._contact * self._contact
 
         err = wrap_angle(self._posture - self._target)
-        energy = self._energy
         self._history["error"].append(err)
-        self._history["energy"].append(energy)
+        self._history["energy"].append(self._energy)
         self._history["contact"].append(self._contact)
-        sc = self.cfg["scales"]
-        raw = {
-            "tracking": -math.sqrt(_sum_sq(self._tracking_error(err))) / sc["tracking"],
-            "energy": -energy / sc["energy"],
-            "action_rate": -_sum_sq(a - self._prev_action) / a.size,
-            "termination": -1.0 if failure is not None else 0.0,
-        }
-        raw.update(self._task_reward_terms(err))
-        weighted = {f"reward_{k}": w * raw[k] for k, w in self.reward_weights.items()}
-        reward = 0.0
-        for v in weighted.values():
-            reward += v
+        weighted, reward = self._reward(err, a, failure)
         self._prev_action = a.astype(np.float32)
         terminated = failure is not None
         time_up = not terminated and self._step >= self.episode_steps
@@ -537,56 +363,17 @@ class VSWristEnv(gym.Env):
     def _measure(self) -> None:
         """Read the simulator once per step (``posture()`` also brings its sensors up to date, unless
         neither the task nor the observation reads them: then only poses and velocities are updated)."""
-        if not (self.reads_sensors or "tool_wrench" in self.cfg["observation"]):
+        if self._light_sync:
             self.sim.sync_kinematics()
         self._posture = self.sim.posture()
         self._defl = self.sim.deflections()
         self._posture_list = self._posture.tolist()
         self._defl_list = self._defl.tolist()
-        s = self.params.spring
-        c0, c1, c2 = (np.cosh(self._defl / s.delta0) - 1.0).tolist()
-        self._energy = float(2.0 * s.K * s.delta0 * (c0 + c1 + c2))  # = np.sum of 3 terms, same order
+        e0, e1, e2 = spring_energy(self._defl, self.params).tolist()
+        self._energy = e0 + e1 + e2  # = np.sum of 3 terms, same order
         self._contact = self._contact_force()
 
-    def _info(self, weighted: dict, final: bool, err: np.ndarray | None = None) -> dict:
-        if err is None:
-            err = wrap_angle(self._posture - self._target)
-        n = max(self._step, 1)
-        info = dict(weighted)
-        info.update(
-            posture_error=math.sqrt(float(err @ err)),
-            contact_force=float(self._contact),
-            peak_contact_force=float(self._peak_contact),
-            rms_contact_force=float(math.sqrt(self._sum_contact_sq / n)),
-            elastic_energy=self._energy,
-            lam=float(self.ctrl.lam),
-            loop_closure=self._closure,
-            closure_exceeded=self._closure > self._closure_warn,
-            time=self._t,
-            is_success=bool(self._success()) if final else False,
-        )
-        return info
-
-    def elastic_energy(self) -> float:
-        """Energy stored in the three springs (J): sum of 2 K delta0 (cosh(delta/delta0) - 1), the integral of
-        the spring law, with the simulator's (possibly randomised) spring parameters."""
-        s = self.params.spring
-        d = np.asarray(self.sim.deflections(), dtype=float)
-        return float(2.0 * s.K * s.delta0 * np.sum(np.cosh(d / s.delta0) - 1.0))
-
     # ------------------------------------------------------------------ task hooks
-    def _full_scene(self, spec: mujoco.MjSpec) -> None:
-        """The task's geometry plus a camera ``task_view`` that frames the hand, the tool and the task objects."""
-        self._scene(spec)
-        pos, target = np.array([0.42, -0.32, 0.16]), np.array([0.17, 0.0, -0.03])
-        f = (target - pos) / np.linalg.norm(target - pos)
-        x = np.cross(f, [0.0, 0.0, 1.0])
-        x /= np.linalg.norm(x)
-        y = np.cross(x, f)
-        q = np.zeros(4)
-        mujoco.mju_mat2Quat(q, np.column_stack([x, y, -f]).ravel())  # a camera looks along its -Z
-        spec.worldbody.add_camera(name="task_view", pos=list(pos), quat=list(q), fovy=45.0)
-
     def _scene(self, spec: mujoco.MjSpec) -> None:
         """Add task geometry to the model before compilation."""
 
@@ -616,38 +403,6 @@ class VSWristEnv(gym.Env):
 
     def _success(self) -> bool:
         raise NotImplementedError
-
-    # ------------------------------------------------------------------ helpers for tasks
-    def _window(self, seconds: float) -> int:
-        return max(1, int(round(seconds / self.ctrl_dt)))
-
-    def _add_touch_sensor(self, spec: mujoco.MjSpec, body, name: str, size, pos=(0.0, 0.0, 0.0), quat=None) -> None:
-        kw = {"quat": quat} if quat is not None else {}
-        body.add_site(name=f"{name}_site", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(size), pos=list(pos),
-                      rgba=[0, 0, 0, 0], group=5, **kw)
-        spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_TOUCH, objtype=mujoco.mjtObj.mjOBJ_SITE,
-                        objname=f"{name}_site")
-
-    def tool_point(self, u, ps: float, p_tool) -> np.ndarray:
-        """World position (m) of point ``p_tool`` (tool frame) at posture u (2,), PS angle ps, from the analytic
-        kinematics: O_c + R_c Rx(ps) (hand_offset e_x + p_tool). Used to place task objects."""
-        from ..kinematics import WristKinematics, rot_x
-        if not hasattr(self, "_kin"):
-            self._kin = WristKinematics(self.nominal_params)
-        T = self._kin.coupler_pose(np.asarray(u, dtype=float), allow_outside=True)
-        p = np.array([self.nominal_params.inertia.hand_offset, 0.0, 0.0]) + rot_x(ps) @ np.asarray(p_tool, float)
-        return T[:3, 3] + T[:3, :3] @ p
-
-    def _add_tool_geom(self, spec: mujoco.MjSpec, name: str, fromto, radius: float, mass: float,
-                       friction: float = 0.5) -> None:
-        """A capsule on the ``tool`` body that collides with task objects only (contype 2 / conaffinity 0)."""
-        spec.body("tool").add_geom(name=f"task_{name}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=list(fromto),
-                                   size=[radius, 0, 0], mass=mass, contype=2, conaffinity=0,
-                                   friction=[friction, 0.005, 0.0001], rgba=[0.55, 0.55, 0.6, 1], group=1,
-                                   condim=3, solref=list(CONTACT_SOLREF))
-
-    def _sensor_adr(self, name: str) -> int:
-        return int(self.model.sensor_adr[self.model.sensor(name).id])
 
     # ------------------------------------------------------------------ rendering
     def render(self):

@@ -16,8 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import VSWristEnv
-
-FINGER_END = 0.06  # m, where the hand's fingers end along the tool X axis (model geometry)
+from .shared import FINGER_END
 
 
 class DrillEnv(VSWristEnv):

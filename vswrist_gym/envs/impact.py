@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._contact import add_mocap_box_body, quat_from_matrix
-from .base import FORCE_CAP, VSWristEnv
-from .drill import FINGER_END
-from .load_hold import smoothstep
+from .base import VSWristEnv
+from .rewards import FORCE_CAP
+from .shared import FINGER_END, add_mocap_box_body, quat_from_matrix, smoothstep
 
 WALL_HALF = (0.01, 0.03, 0.035)  # m: thickness (along the motion), along the tool, across
 

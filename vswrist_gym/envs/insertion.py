@@ -15,7 +15,7 @@ Adapting stiffness pays: at the task's reference the soft wrist cannot push past
 less than ``fit_force`` at the remaining RUD error; a deeper posture reference can), and the stiff one pays
 preload energy all episode and presses the pin against the walls (wall force ~ stiffness x misalignment); soft
 while approaching and stiff only while pushing the fit down beats every constant stiffness
-(``python -m vswrist_gym.envs.probe --tasks Insertion``).
+(``python -m vswrist_gym.tools.probe --tasks Insertion``).
 
 Contact forces: ``contact_force`` (and the ``jamming`` term) is the normal force of the walls and chamfers on
 the tool; the fit plate has its own sensor, ``bottom_force``.
@@ -28,7 +28,7 @@ at the last step the pin's end is inside the hole between ``success_depth`` x ``
 (``SEAT_SLACK`` past it at most: deeper, the pin is beside or under the hole, not in it), the wall force never
 exceeded ``success_wall_force`` over the episode, and the mean elastic energy stays below ``success_energy``.
 Flailing reaches the depth (it swings the pin under the hole or rams it through the fit with wall forces of
-hundreds of N), so depth alone would reward it (``python -m vswrist_gym.envs.probe --success``).
+hundreds of N), so depth alone would reward it (``python -m vswrist_gym.tools.probe --success``).
 """
 
 from __future__ import annotations
@@ -36,10 +36,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from ._contact import CONTACT_SOLREF, add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
-from .base import FORCE_CAP, VSWristEnv
+from .base import VSWristEnv
 from .config import EnvConfigError
-from .drill import FINGER_END
+from .rewards import FORCE_CAP
+from .shared import CONTACT_SOLREF, FINGER_END, add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
 
 WALL = 0.008      # m, half thickness of the walls around the hole
 PLATE = 0.02      # m, half extent of the walls beyond the hole
@@ -206,7 +206,7 @@ class InsertionEnv(VSWristEnv):
         return float(self.data.qpos[self._fit_qadr] / lo)
 
     def _task_obs_terms(self):
-        from .spaces import ObsTerm
+        from .observations import ObsTerm
         return [ObsTerm("bottom_force", 1, "N", "normal force of the fit plate (at the hole bottom once pushed down) "
                         "on the pin (no sensor noise)", self.bottom_force, 0.0, 1e5)]
 

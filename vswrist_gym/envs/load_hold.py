@@ -14,12 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import VSWristEnv
-
-
-def smoothstep(x: float) -> float:
-    """Minimum-jerk blend 0 -> 1 on x in [0, 1]."""
-    x = min(max(x, 0.0), 1.0)
-    return x * x * x * (10.0 + x * (-15.0 + 6.0 * x))
+from .shared import smoothstep
 
 
 class LoadHoldEnv(VSWristEnv):

@@ -18,10 +18,8 @@ import bisect
 
 import numpy as np
 
-from ._contact import add_mocap_box_body, quat_from_matrix, rot_x
 from .base import VSWristEnv
-from .drill import FINGER_END
-from .load_hold import smoothstep
+from .shared import FINGER_END, add_mocap_box_body, quat_from_matrix, rot_x, smoothstep
 
 SURFACE_HALF = (0.06, 0.16, 0.01)  # m, half sizes of the surface slab
 
@@ -111,7 +109,7 @@ class PolishEnv(VSWristEnv):
         return np.array([rud, self._fe(t), self._ps])
 
     def _task_obs_terms(self):
-        from .spaces import ObsTerm
+        from .observations import ObsTerm
         return [ObsTerm("force_target", 1, "N", "target normal force of the current pass", self.force_target,
                         0.0, 1e4)]
 

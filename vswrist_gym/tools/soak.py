@@ -1,6 +1,6 @@
 """Soak test: many environment steps over every task, with resident memory, warnings and failures counted.
 
-``python -m vswrist_gym.envs.soak --steps 1000000`` steps every registered task (``vswrist_gym.TASKS``) with
+``python -m vswrist_gym.tools.soak --steps 1000000`` steps every registered task (``vswrist_gym.TASKS``) with
 two agents, uniform random actions and the analytic baseline (``AnalyticAgent``, stiffness command 0), each
 in two settings: the task's default config (tool mass, friction and sensor noise randomised at every reset)
 and, for ``--rebuild-fraction`` of the steps, every randomisation term on, so that each reset draws new
@@ -309,7 +309,7 @@ def format_result(r: SoakResult, max_growth: float = MAX_GROWTH) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m vswrist_gym.envs.soak",
+    p = argparse.ArgumentParser(prog="python -m vswrist_gym.tools.soak",
                                 description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--steps", type=int, default=1_000_000, help="environment steps in all (default 1,000,000)")
     p.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,

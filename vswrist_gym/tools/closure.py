@@ -1,6 +1,6 @@
 """How far the loop-closure welds open inside the environments, with their tools, loads and contacts.
 
-``python -m vswrist_gym.envs.closure [--steps N] [--seeds ...] [--tasks ...] [--params ...] [--agents ...]``
+``python -m vswrist_gym.tools.closure [--steps N] [--seeds ...] [--tasks ...] [--params ...] [--agents ...]``
 steps every task with three agents, the analytic baseline commanding the observed posture reference
 (``reference_to_action(target, 0)``: smooth references, as a controller sends them), uniformly random actions
 (a new posture and stiffness every control period: reference jumps, as an untrained policy sends them) and

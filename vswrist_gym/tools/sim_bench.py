@@ -17,10 +17,10 @@ from datetime import datetime, timezone
 import mujoco
 import numpy as np
 
-from .model import native
-from .params import DEVICE_PRESETS, PRESETS, load_params
-from .sim import WristSim
-from .stiffness import coupler_stiffness, lambda_range, motor_references
+from ..model import native
+from ..params import DEVICE_PRESETS, PRESETS, load_params
+from ..sim import WristSim
+from ..stiffness import coupler_stiffness, lambda_range, motor_references
 
 
 def _reference_schedule(sim: WristSim, n: int, seed: int = 0) -> np.ndarray:
@@ -330,3 +330,7 @@ def main(argv: list[str] | None = None) -> int:
                      for k in range(PERTURBATIONS)]
                 print(f"  [{preset}] {mode:<9} {max(c):.2e} / {np.median(c):.2e} / {min(c):.2e}", flush=True)
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,6 +1,6 @@
 """Does adapting stiffness within an episode pay off? Constant stiffness against a simple adaptive rule.
 
-``python -m vswrist_gym.envs.probe [--episodes N] [--tasks ...]`` runs, on every task, the reference agent
+``python -m vswrist_gym.tools.probe [--episodes N] [--tasks ...]`` runs, on every task, the reference agent
 (command the task's posture reference, ``target``) with each constant stiffness command in
 ``CONSTANT_COMMANDS`` and with a simple hand-written rule that changes the stiffness within the episode from
 what the observation shows (no hidden task state). It prints mean return and success rate of each. A task

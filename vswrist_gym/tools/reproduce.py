@@ -40,9 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .control import AnalyticController
-from .params import DEVICE_PRESETS, IDENTIFIED_PRESETS, PRESETS, load_params
-from .stiffness import coupler_stiffness
+from ..control import AnalyticController
+from ..params import DEVICE_PRESETS, IDENTIFIED_PRESETS, PRESETS, load_params
+from ..stiffness import coupler_stiffness, spring_torque
 
 PAPER = {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
 NUMBER_KEYS = tuple(PAPER)
@@ -73,7 +73,7 @@ def trial(params, lam: float, duration: float, gravity_compensation: bool = True
     ``load``: the force (N, base frame) at the hand point; default LOAD_MASS x ``environment.gravity``.
     ``control_dt`` (s) and ``reference_fn`` (t -> (RUD, FE, PS)) exist for the what-if diagnostics of
     ``vswrist_gym.identify``; the reproduction uses CONTROL_DT and ``reference``."""
-    from .sim import SimulationError, WristSim
+    from ..sim import SimulationError, WristSim
 
     reference_fn = reference if reference_fn is None else reference_fn
     sim = WristSim(params)
@@ -201,7 +201,7 @@ def figure_3ab(params, out_dir: Path) -> tuple[Path, Path]:
         theta = ctrl.step((0, 0, 0), lam=lam)
         q1, _, _ = ctrl.kinematics_at(u0)
         delta = q1 - theta[:3]
-        torques.append(-2 * params.spring.K * np.sinh(delta / params.spring.delta0))
+        torques.append(spring_torque(delta, params))
         stiff.append(np.linalg.eigvalsh(ctrl.stiffness()).mean())
     ax.set_aspect("equal")
     ax.set_xlabel("FE, rad/(N m)")
@@ -382,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(vswrist_gym.identify; minutes) and write identify.json")
     args = parser.parse_args(argv)
     if args.identify:
-        from . import identify
+        from .. import identify
         return identify.main(["--out", args.out] + (["--quick"] if args.quick else []))
     results = run(args.out, quick=args.quick, presets=args.presets,
                   gravity_compensation=not args.no_gravity_compensation)
@@ -407,3 +407,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{d['torque_ratio_hs_over_ls']:.3g})")
     print(f"figures and results.json in {args.out}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,4 +1,4 @@
-"""Action mappings and the named observation table.
+"""Actions: the four action modes, the command maps they use, and the action checks.
 
 Action mode ``posture_stiffness`` (the default): four numbers in [-1, 1].
 
@@ -11,28 +11,19 @@ Action mode ``posture_stiffness`` (the default): four numbers in [-1, 1].
   Only lam >= 0 is used: the stiffness grows with |lam| for either sign (the load term makes negative lam a
   little softer than positive), so a signed map would not be monotone. lam_max is the smallest upper
   bound of the reachable range over the range of motion, so every command is reachable at every posture.
+
+Mode ``posture_compliance`` (6 numbers): posture as above, then two diagonal compliances log-mapped onto
+``compliance.min..max`` and an off-diagonal correlation in (-0.9, 0.9). Mode ``residual`` (4): a posture offset
+of at most ``residual.posture_scale`` rad around the task's reference and a stiffness command
+``stiffness_nominal + stiffness_scale a``. Mode ``motor`` (4): motor references directly, linear over the legs'
+reachable angles +- the deflection limit (and the PS range).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
+import math
 
 import numpy as np
-
-
-@dataclass(frozen=True)
-class ObsTerm:
-    """One named observation term: its size, unit, meaning, a function returning a fresh array, and its bounds
-    (the declared space; values are clipped to them, which the bounds are chosen never to need in operation)."""
-
-    name: str
-    size: int
-    unit: str
-    doc: str
-    fn: Callable[[], np.ndarray]
-    low: float | np.ndarray = -np.inf
-    high: float | np.ndarray = np.inf
 
 
 class StiffnessMap:
@@ -105,6 +96,62 @@ def check_action(action, shape: tuple[int, ...]) -> np.ndarray:
     return a
 
 
-def wrap_angle(x):
-    """Angle difference wrapped to [-pi, pi)."""
-    return (np.asarray(x) + np.pi) % (2.0 * np.pi) - np.pi
+class ActionsMixin:
+    """The action side of ``VSWristEnv``: command maps built at construction, action -> motor references."""
+
+    def _lam_max(self) -> float:
+        """Smallest reachable upper bound of lam over a grid of the range of motion (N m)."""
+        rom = self.nominal_params.range_of_motion
+        his = [self.ctrl.lambda_range(np.array([a, b]))[1]
+               for a in np.linspace(rom.rud_min, rom.rud_max, 5) for b in np.linspace(rom.fe_min, rom.fe_max, 5)]
+        self._lam_hi_max = float(max(his))
+        return float(min(his))
+
+    def _motor_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Motor reference range for mode ``motor``: leg angles over the range of motion +- the deflection limit."""
+        from ..kinematics import WristKinematics
+        rom = self.nominal_params.range_of_motion
+        kin = WristKinematics(self.nominal_params)
+        q1 = np.array([kin.joint_angles(np.array([a, b]))[0::4]
+                       for a in np.linspace(rom.rud_min, rom.rud_max, 7)
+                       for b in np.linspace(rom.fe_min, rom.fe_max, 7)])
+        dl = self.nominal_params.spring.deflection_limit
+        lo = np.append(q1.min(axis=0) - dl, rom.ps_min)
+        hi = np.append(q1.max(axis=0) + dl, rom.ps_max)
+        return lo, hi
+
+    def reference_to_action(self, posture_ref, stiffness: float) -> np.ndarray:
+        """The ``posture_stiffness`` action (4,) that commands ``posture_ref`` (RUD, FE, PS; rad) with
+        stiffness command ``stiffness`` in [-1, 1]: the inverse of that mode's mapping."""
+        s = float(stiffness)
+        if not (math.isfinite(s) and -1.0 <= s <= 1.0):
+            raise ValueError(f"stiffness command must be in [-1, 1], got {stiffness!r}")
+        ref = np.asarray(posture_ref, dtype=float)
+        if ref.shape != (3,) or not np.isfinite(ref).all():
+            raise ValueError(f"posture_ref must be 3 finite angles (RUD, FE, PS) in rad, got {posture_ref!r}")
+        return np.append(self.posture_map.to_command(ref), s).astype(np.float32)
+
+    def lam_to_stiffness_command(self, lam: float) -> float:
+        """The stiffness command in [-1, 1] that maps to internal torque ``lam`` (N m), clipped to [0, lam_max]."""
+        return self.stiffness_map.to_command(lam)
+
+    def _motor_refs(self, a: np.ndarray) -> np.ndarray:
+        mode = self.cfg["action_mode"]
+        if mode == "motor":
+            return self._motor_lo + 0.5 * (a + 1.0) * (self._motor_hi - self._motor_lo)
+        if mode == "posture_stiffness":
+            ref = self.posture_map.to_posture(a[:3])
+            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(a[3]))
+        if mode == "residual":
+            r = self.cfg["residual"]
+            ref = self.posture_map.clip(self._target + r["posture_scale"] * a[:3])
+            s = r["stiffness_nominal"] + r["stiffness_scale"] * a[3]
+            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(s))
+        # posture_compliance: diagonal compliances log-mapped, off-diagonal as a correlation in (-0.9, 0.9)
+        c = self.cfg["compliance"]
+        ref = self.posture_map.to_posture(a[:3])
+        lc = np.log(c["min"]) + 0.5 * (a[3:5] + 1.0) * (np.log(c["max"]) - np.log(c["min"]))
+        d = np.exp(lc)
+        off = 0.9 * a[5] * math.sqrt(d[0] * d[1])
+        C = np.array([[d[0], off], [off, d[1]]])
+        return self.ctrl.step(ref, compliance_ref=C)

@@ -7,9 +7,9 @@ import dataclasses
 
 import numpy as np
 
-from .kinematics import WristKinematics
-from .params import PRESETS, load_params
-from .stiffness import coupler_stiffness, lambda_range, max_leg_torque
+from ..kinematics import WristKinematics
+from ..params import PRESETS, load_params
+from ..stiffness import coupler_stiffness, lambda_range, max_leg_torque
 
 
 def self_check(kin: WristKinematics, samples: int = 500, seed: int = 0) -> float:
@@ -53,3 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nKinematics self-check: max |FK(IK(T)) - T| over 500 postures x 3 legs = {err:.2e}"
           f" ({'ok' if err < 1e-10 else 'FAILED'})")
     return 0 if err < 1e-10 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

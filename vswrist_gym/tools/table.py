@@ -1,6 +1,6 @@
 """The environment tables of ``docs/environments.md``, generated from the code and the YAML configs.
 
-``python -m vswrist_gym.envs.table --write docs/environments.md`` rewrites the blocks between
+``python -m vswrist_gym.tools.table --write docs/environments.md`` rewrites the blocks between
 ``<!-- BEGIN GENERATED: name -->`` and ``<!-- END GENERATED: name -->``; ``--check`` fails if they are stale
 (the test suite runs the same check), so the documented tables cannot drift from the code.
 """
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.check:
         if new != text:
-            print(f"{path}: generated blocks are stale; run python -m vswrist_gym.envs.table --write {path}",
+            print(f"{path}: generated blocks are stale; run python -m vswrist_gym.tools.table --write {path}",
                   file=sys.stderr)
             return 1
         return 0

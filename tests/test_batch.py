@@ -1,0 +1,306 @@
+"""The batched core (``gym.make_vec(id, N)``) against the single environments, and its vector API."""
+
+import pickle
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import vswrist_gym
+from vswrist_gym.agents.analytic import AnalyticAgent
+
+sys.path.insert(0, str(Path(__file__).parent / "reference"))
+import record  # noqa: E402  (tests/reference/record.py: the recorded protocol)
+
+IDS = list(vswrist_gym.ENV_IDS)
+N = 3
+STEPS = 70
+DIVERGE = (1, 40)  # (world, step): poison world 1's velocities before step 40, in the batch and its single twin
+
+
+def make_batch(env_id, n=N, **kw):
+    return gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kw)
+
+
+def _compare_info(single: dict, vec: dict, i: int, where: str) -> None:
+    for k, v in single.items():
+        if isinstance(v, (bool, int, float, np.number, np.ndarray)):
+            assert vec[f"_{k}"][i], f"{where}: info[{k!r}] missing for world {i}"
+            np.testing.assert_allclose(vec[k][i], v, rtol=0, atol=1e-9, err_msg=f"{where}: info[{k!r}]")
+        elif isinstance(v, str):
+            assert vec[k][i] == v, where
+
+
+@pytest.mark.parametrize("policy", ["random", "analytic"])
+@pytest.mark.parametrize("env_id", IDS)
+def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy):
+    """World i of the batch reproduces gym.make(id) reset with seed s + i, step for step, through short episodes
+    (autoresets), a divergence in one world, and latency randomisation; physics on 2 threads."""
+    cfg = {"episode_s": 0.5, "randomize": {"latency": {"enabled": True}}}
+    for seed in (2, 9):
+        venv = make_batch(env_id, config=cfg, threads=2)
+        singles = [gym.make(env_id, config=cfg) for _ in range(N)]
+        rng = np.random.default_rng(seed)
+        obs, vinfo = venv.reset(seed=seed)
+        sobs = []
+        for i, e in enumerate(singles):
+            o, info = e.reset(seed=seed + i)
+            sobs.append(o)
+            np.testing.assert_allclose(obs[i], o, rtol=0, atol=1e-9)
+            _compare_info(info, vinfo, i, "reset")
+        agents = [AnalyticAgent(e, stiffness=0.3) for e in singles] if policy == "analytic" else None
+        needs_reset = np.zeros(N, dtype=bool)
+        autoresets = 0
+        for t in range(STEPS):
+            if agents is None:
+                acts = rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32)
+            else:
+                acts = np.stack([a.predict(o, deterministic=True)[0] for a, o in zip(agents, sobs)])
+            if t == DIVERGE[1]:
+                venv.unwrapped.envs[DIVERGE[0]].data.qvel[:] = 1e12
+                singles[DIVERGE[0]].unwrapped.data.qvel[:] = 1e12
+            obs, rew, term, trunc, vinfo = venv.step(acts)
+            for i, e in enumerate(singles):
+                where = f"{env_id} seed {seed} step {t} world {i}"
+                if needs_reset[i]:  # NEXT_STEP autoreset: this step only resets world i
+                    o, info = e.reset()
+                    r, te, tr = 0.0, False, False
+                else:
+                    o, r, te, tr, info = e.step(acts[i])
+                sobs[i] = o
+                np.testing.assert_allclose(obs[i], o, rtol=0, atol=1e-9, err_msg=where)
+                np.testing.assert_allclose(rew[i], r, rtol=0, atol=1e-9, err_msg=where)
+                assert (term[i], trunc[i]) == (te, tr), where
+                _compare_info(info, vinfo, i, where)
+            if t == DIVERGE[1]:
+                assert term[DIVERGE[0]] and "simulation_error" in vinfo
+            autoresets += int(needs_reset.sum())
+            needs_reset = term | trunc
+        assert autoresets >= 2 * N  # several episodes per world (and the diverged one)
+        venv.close()
+
+
+@pytest.mark.parametrize("task", record.TASKS)
+def test_single_env_replays_the_recorded_reference(task):
+    """The single env (a view of the same step code as the batch) against trajectories recorded from the code
+    before the batched core existed (tests/reference/record.py); exact only on the recording's machine and
+    versions, since MuJoCo's floats differ between CPUs."""
+    ref = np.load(Path(__file__).parent / "reference" / "trajectories.npz")
+    if str(ref["machine"]) != record.machine():
+        pytest.skip(f"reference recorded on {ref['machine']}, this is {record.machine()}")
+    for seed in record.SEEDS:
+        for policy in ("random", "analytic"):
+            env = gym.make(f"VSWrist/{task}-v0", config=record.CONFIG)
+            rec = record.run(env, lambda e: e.unwrapped.data, task, seed, policy)
+            env.close()
+            for k, v in rec.items():
+                want = ref[f"{task}/{seed}/{policy}/{k}"]
+                got = v.astype(np.float32) if k == "obs" else v
+                np.testing.assert_allclose(got, want, rtol=0, atol=1e-9, err_msg=f"{task} {seed} {policy} {k}")
+
+
+def test_make_vec_spaces_metadata_and_seeding():
+    venv = make_batch("VSWrist/LoadHold-v0", n=4)
+    single = gym.make("VSWrist/LoadHold-v0")
+    assert venv.num_envs == 4
+    assert venv.single_observation_space == single.observation_space
+    assert venv.observation_space.shape == (4,) + single.observation_space.shape
+    assert venv.action_space.shape == (4,) + single.action_space.shape
+    assert venv.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
+    o1, _ = venv.reset(seed=[10, 11, 12, 13])
+    o2, _ = venv.reset(seed=10)
+    np.testing.assert_array_equal(o1, o2)
+    assert venv.observation_space.contains(o1)
+    assert len({tuple(row) for row in o1}) == 4  # the worlds differ
+    venv.close()
+
+
+def test_dict_observations_and_other_action_modes_batch():
+    venv = make_batch("VSWrist/Polish-v0", n=2, config={"obs_mode": "dict", "action_mode": "posture_compliance"})
+    obs, _ = venv.reset(seed=0)
+    assert set(obs) == set(venv.single_observation_space.spaces)
+    obs, *_ = venv.step(venv.action_space.sample())
+    assert venv.observation_space.contains(obs)
+    assert venv.action_space.shape == (2, 6)
+    venv.close()
+
+
+@pytest.mark.parametrize("bad, match", [
+    (lambda a: a.__setitem__((2, 1), np.nan), r"env 2: action holds NaN"),
+    (lambda a: a.__setitem__((0, 3), np.inf), r"env 0: action holds inf"),
+])
+def test_bad_batched_actions_name_the_env_and_step_nothing(bad, match):
+    venv = make_batch("VSWrist/Drill-v0")
+    venv.reset(seed=1)
+    before = [(e.sim.get_state(), e._step) for e in venv.envs]
+    acts = np.zeros(venv.action_space.shape)
+    bad(acts)
+    with pytest.raises(ValueError, match=match):
+        venv.step(acts)
+    with pytest.raises(ValueError, match=r"shape \(3, 4\)"):
+        venv.step(np.zeros((2, 4)))
+    for e, (state, step) in zip(venv.envs, before):
+        np.testing.assert_array_equal(e.sim.get_state(), state)
+        assert e._step == step
+    venv.close()
+
+
+def test_same_step_autoreset_returns_the_final_observation():
+    venv = make_batch("VSWrist/LoadHold-v0", n=2, config={"episode_s": 0.1},
+                      autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    single = gym.make("VSWrist/LoadHold-v0", config={"episode_s": 0.1})
+    venv.reset(seed=4)
+    single.reset(seed=4)
+    a = np.zeros(venv.action_space.shape)
+    for _ in range(5):
+        obs, r, term, trunc, info = venv.step(a)
+        so, sr, _, st, _ = single.step(a[0])
+    assert trunc.all() and st
+    np.testing.assert_allclose(info["final_obs"][0], so, atol=1e-9)
+    o, _ = single.reset()
+    np.testing.assert_allclose(obs[0], o, atol=1e-9)
+    venv.close()
+
+
+def test_device_randomisation_rebuilds_each_worlds_model():
+    cfg = {"randomize": {"spring_K": {"enabled": True, "range": [0.5, 1.5]}}}
+    venv = make_batch("VSWrist/LoadHold-v0", config=cfg, threads=2)
+    venv.reset(seed=3)
+    Ks = [e.sim.params.spring.K for e in venv.envs]
+    assert len(set(Ks)) == N  # one model per world
+    for i, e in enumerate(venv.envs):
+        single = gym.make("VSWrist/LoadHold-v0", config=cfg)
+        single.reset(seed=3 + i)
+        assert single.unwrapped.sim.params.spring.K == Ks[i]
+    obs, r, *_ = venv.step(np.zeros(venv.action_space.shape))
+    assert np.all(np.isfinite(r))
+    venv.close()
+
+
+def test_threads_default_to_the_cores_are_settable_and_serial_with_python_callbacks(monkeypatch):
+    from vswrist_gym.envs.batch import default_threads
+    from vswrist_gym.model import native
+
+    venv = make_batch("VSWrist/LoadHold-v0", n=4)
+    assert venv.threads == min(default_threads(), 4)
+    venv.set_threads(1)
+    assert venv.threads == 1
+    with pytest.raises(ValueError, match="threads"):
+        venv.set_threads(0)
+    venv.close()
+    monkeypatch.setenv("VSWRIST_THREADS", "3")  # what vswrist compare gives each of its concurrent trainings
+    assert default_threads() == 3
+    monkeypatch.setenv("VSWRIST_THREADS", "zero")
+    with pytest.raises(ValueError, match="VSWRIST_THREADS"):
+        default_threads()
+    monkeypatch.delenv("VSWRIST_THREADS")
+    # the fallback callbacks re-enter Python every substep: the batch steps serially whatever threads says
+    monkeypatch.setenv("VSWRIST_NATIVE", "0")
+    try:
+        venv = make_batch("VSWrist/LoadHold-v0", n=4, threads=4)
+        assert native.backend() == "python" and venv.backend == "python" and venv.threads == 1
+        venv.reset(seed=0)
+        _, r, *_ = venv.step(np.zeros(venv.action_space.shape))
+        assert np.all(np.isfinite(r))
+        venv.close()
+    finally:
+        monkeypatch.delenv("VSWRIST_NATIVE")
+        native.install("c")
+
+
+def test_pickled_batch_continues_identically():
+    venv = make_batch("VSWrist/Impact-v0", n=2, threads=2)
+    venv.reset(seed=0)
+    a = np.full(venv.action_space.shape, 0.2)
+    venv.step(a)
+    twin = pickle.loads(pickle.dumps(venv))
+    o1, r1, *_ = venv.step(a)
+    o2, r2, *_ = twin.step(a)
+    np.testing.assert_array_equal(o1, o2)
+    np.testing.assert_array_equal(r1, r2)
+    venv.close()
+    twin.close()
+
+
+def test_render_one_or_all_worlds(headless_gl):
+    venv = make_batch("VSWrist/Polish-v0", n=2, render_mode="rgb_array", config={"render": {"width": 64,
+                                                                                          "height": 48}})
+    venv.reset(seed=0)
+    frames = venv.render()
+    assert len(frames) == 2 and frames[0].shape == (48, 64, 3)
+    assert venv.render(env_index=1).shape == (48, 64, 3)
+    venv.close()
+
+
+def test_sb3_adapter_passes_sb3_checks_and_matches_the_batch():
+    from stable_baselines3.common.vec_env import VecNormalize
+    from stable_baselines3.common.vec_env.util import obs_space_info  # noqa: F401
+
+    from vswrist_gym.agents.vec_env import BatchVecEnv
+
+    sb3 = BatchVecEnv("VSWrist/LoadHold-v0", 2, {"episode_s": 0.1})
+    sb3.seed(5)
+    obs = sb3.reset()
+    venv = make_batch("VSWrist/LoadHold-v0", n=2, config={"episode_s": 0.1})
+    vobs, _ = venv.reset(seed=5)
+    np.testing.assert_array_equal(obs, vobs)
+    a = np.zeros((2, 4), dtype=np.float32)
+    for t in range(5):
+        obs, rew, done, infos = sb3.step(a)
+        vobs, vrew, vterm, vtrunc, _ = venv.step(a)
+        np.testing.assert_allclose(rew, vrew, atol=1e-5)
+    assert done.all() and all(i["TimeLimit.truncated"] for i in infos)
+    np.testing.assert_allclose(infos[0]["terminal_observation"], vobs[0])
+    assert sb3.get_attr("task_id") == ["VSWrist/LoadHold-v0"] * 2
+    assert sb3.env_method("success_description")[0]
+    norm = VecNormalize(sb3)
+    norm.reset()
+    norm.step(a)
+    norm.close()
+    venv.close()
+
+
+def test_sb3_trains_on_the_batch():
+    from stable_baselines3 import PPO
+
+    from vswrist_gym.agents.vec_env import BatchVecEnv
+
+    sb3 = BatchVecEnv("VSWrist/LoadHold-v0", 4, {"episode_s": 0.2})
+    model = PPO("MlpPolicy", sb3, n_steps=16, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    model.learn(128)
+    assert model.num_timesteps >= 128
+    sb3.close()
+
+
+@pytest.mark.parametrize("env_id", ["VSWrist/Polish-v0", "VSWrist/Drill-v0"])
+def test_batched_evaluation_gives_the_serial_records(env_id):
+    """The protocol's episodes of one seed as the worlds of a batch: the same records and trace as one env run
+    episode after episode (the analytic agent acts row by row, so the equality is exact)."""
+    from vswrist_gym.agents.protocol import evaluate
+
+    def make_agent(env):
+        return AnalyticAgent(env, schedule=[(0.0, -0.5), (0.3, 0.5)])
+
+    cfg = {"config": {"episode_s": 0.4}}
+    serial, tr1 = evaluate(env_id, make_agent, [0, 1], 3, env_kwargs=cfg, trace_episode=(1, 2), batch=False)
+    batched, tr2 = evaluate(env_id, make_agent, [0, 1], 3, env_kwargs=cfg, trace_episode=(1, 2))
+    assert len(batched) == 6
+    for a, b in zip(serial, batched):
+        assert a.keys() == b.keys()
+        for k in a:
+            assert a[k] == b[k] or (a[k] != a[k] and b[k] != b[k]), (k, a[k], b[k])
+    assert tr1 == tr2
+
+
+def test_reset_mask_resets_only_the_masked_worlds():
+    venv = make_batch("VSWrist/Impact-v0")
+    obs0, _ = venv.reset(seed=20)
+    a = np.zeros(venv.action_space.shape)
+    obs1, *_ = venv.step(a)
+    obs2, info = venv.reset(options={"reset_mask": np.array([False, True, False])})
+    np.testing.assert_array_equal(obs2[[0, 2]], obs1[[0, 2]])  # untouched worlds keep their observation
+    assert not np.array_equal(obs2[1], obs1[1]) and list(info["_posture_error"]) == [False, True, False]
+    assert venv.envs[0]._step == 1 and venv.envs[1]._step == 0
+    venv.close()

@@ -1,0 +1,548 @@
+"""``vswrist bench-env``: environment speed on one core, against Gymnasium's ``Ant-v5`` measured in the same run.
+
+For every task (default control rate, default config) it reports:
+
+* env steps per second of CPU time on one core (process pinned to one CPU; CPU time of this process, so that
+  other jobs on a shared machine distort the figures less than wall time would), random actions drawn
+  beforehand, resets included;
+* the physics-alone share: the time spent inside ``WristSim.step`` (springs + motors + ``mj_step`` over the
+  control period) during that same run, so the ratio ``env step / physics`` is measured on identical states;
+* the same for ``Ant-v5`` (its ``mj_step`` calls timed the same way), as the reference;
+* the time per step outside the physics (us), next to the budgets the two relative targets leave for it:
+  ``0.25 x physics`` (env/physics <= 1.25) and ``Ant-v5's step - physics`` (as fast as Ant-v5);
+* optionally (``--breakdown``) where that time goes, from a second run with more timers: the sensor update
+  after the step (``mj_forward``), the analytic controller, the observation, and the rest (action checks,
+  task logic, rewards, info, Gymnasium's wrappers);
+* optionally (``--vec``) the scaling with stable-baselines3's ``SubprocVecEnv`` on 1 and 2 worker processes.
+
+Each figure is the median of ``--repeats`` runs. Speeds depend on the machine and on what else runs on it;
+quote them with the date and the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from datetime import datetime, timezone
+
+import numpy as np
+
+from vswrist_gym import TASKS, task_name
+
+
+def _pin_one_core() -> int | None:
+    try:
+        cpu = sorted(os.sched_getaffinity(0))[-1]
+        os.sched_setaffinity(0, {cpu})
+        return cpu
+    except (AttributeError, OSError):
+        return None
+
+
+_clock = time.process_time  # CPU time of this process (the benchmark is single-threaded and pinned)
+
+
+class _Timer:
+    """Wraps a callable and accumulates the CPU time spent in it."""
+
+    def __init__(self, fn):
+        self.fn, self.total = fn, 0.0
+
+    def __call__(self, *args, **kwargs):
+        t0 = _clock()
+        try:
+            return self.fn(*args, **kwargs)
+        finally:
+            self.total += _clock() - t0
+
+
+def _run(env, actions, physics: _Timer) -> tuple[float, float]:
+    """Steps through ``actions`` (resetting at episode ends); returns (env steps/s, physics share of time)."""
+    env.reset(seed=0)
+    physics.total = 0.0
+    t0 = _clock()
+    for a in actions:
+        _, _, term, trunc, _ = env.step(a)
+        if term or trunc:
+            env.reset()
+    wall = _clock() - t0
+    return len(actions) / wall, physics.total / wall
+
+
+def _summary(name: str, runs: list[tuple[float, float]], ctrl_hz: float, substeps: int) -> dict:
+    sps = statistics.median(r[0] for r in runs)
+    share = statistics.median(r[1] for r in runs)
+    return {"task": name, "steps_per_s": sps, "physics_share": share, "overhead_ratio": 1.0 / share,
+            "ctrl_hz": ctrl_hz, "substeps": substeps, "physics_steps_per_s": sps * substeps,
+            "physics_us": 1e6 * share / sps, "other_us": 1e6 * (1.0 - share) / sps}
+
+
+# the parts of the time outside the physics that ``--breakdown`` times separately: (label, owner, method)
+_PARTS = (("sensor update", "sim", "_forward"), ("sensor update", "sim", "sync_kinematics"),
+          ("controller", "ctrl", "step"), ("observation", "env", "_observation"))
+
+
+def bench_task(name: str, steps: int, repeats: int, breakdown: bool = False) -> dict:
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401  (registers the ids)
+
+    env = gym.make(f"VSWrist/{name}-v0")
+    u = env.unwrapped
+    timer = _Timer(u.sim.step)
+    u.sim.step = timer
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps,) + env.action_space.shape).astype(np.float32)
+    _run(env, actions[: min(200, steps)], timer)  # warm-up
+    runs = [_run(env, actions, timer) for _ in range(repeats)]
+    out = _summary(name, runs, 1.0 / u.ctrl_dt, u.n_substeps)
+    if breakdown:
+        # a separate run, so that the extra timers do not slow the headline figures; parts in us per env step
+        owners = {"sim": u.sim, "ctrl": u.ctrl, "env": u}
+        parts = []
+        for label, owner, method in _PARTS:
+            t = _Timer(getattr(owners[owner], method))
+            setattr(owners[owner], method, t)
+            parts.append((label, t))
+        _run(env, actions, timer)  # warm-up with the timers
+        for _, t in parts:
+            t.total = 0.0
+        sps, share = _run(env, actions, timer)
+        step_us = 1e6 / sps
+        split: dict[str, float] = {"physics": share * step_us}
+        for label, t in parts:
+            split[label] = split.get(label, 0.0) + 1e6 * t.total / len(actions)
+        split["rest"] = step_us - sum(split.values())
+        out["breakdown_us"] = split
+    env.close()
+    return out
+
+
+def bench_ant(steps: int, repeats: int) -> dict | None:
+    import gymnasium as gym
+    import mujoco
+
+    try:
+        env = gym.make("Ant-v5")
+    except Exception as exc:  # noqa: BLE001 - report, do not fail the benchmark
+        return {"task": "Ant-v5", "error": str(exc)}
+    u = env.unwrapped
+    # Gymnasium's MujocoEnv calls mujoco.mj_step(model, data, nstep=frame_skip) from its module namespace
+    import gymnasium.envs.mujoco.mujoco_env as me
+
+    timer = _Timer(mujoco.mj_step)
+    original = me.mujoco.mj_step
+    me.mujoco.mj_step = timer
+    try:
+        rng = np.random.default_rng(0)
+        actions = rng.uniform(env.action_space.low, env.action_space.high,
+                              (steps,) + env.action_space.shape).astype(np.float32)
+        _run(env, actions[: min(200, steps)], timer)
+        runs = [_run(env, actions, timer) for _ in range(repeats)]
+    finally:
+        me.mujoco.mj_step = original
+    env.close()
+    return _summary("Ant-v5", runs, 1.0 / u.dt, u.frame_skip)
+
+
+def _make_env(name: str):
+    def thunk():
+        import gymnasium as gym
+
+        import vswrist_gym  # noqa: F401
+
+        return gym.make(f"VSWrist/{name}-v0")
+    return thunk
+
+
+def bench_vec(name: str, steps: int) -> dict:
+    """Steps per wall-clock second of SB3's SubprocVecEnv with 1 and 2 workers (total over all workers)."""
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    out = {"task": name}
+    for n in (1, 2):
+        venv = SubprocVecEnv([_make_env(name) for _ in range(n)], start_method="fork")
+        try:
+            venv.seed(0)
+            venv.reset()
+            rng = np.random.default_rng(0)
+            acts = rng.uniform(-1, 1, (steps // n, n, venv.action_space.shape[0])).astype(np.float32)
+            for a in acts[:50]:
+                venv.step(a)
+            t0 = time.perf_counter()
+            for a in acts:
+                venv.step(a)
+            out[f"workers_{n}"] = n * len(acts) / (time.perf_counter() - t0)
+        finally:
+            venv.close()
+    out["scaling_2_over_1"] = out["workers_2"] / out["workers_1"]
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- batched
+# The single env's step as it was before the batched core split it into phases (commit 3df1fe0), kept only so
+# that ``--batch`` can show the N = 1 cost side by side with it (target: the new single env <= 1.1x this);
+# delete it once that comparison has been re-measured on the integration machine.
+import math  # noqa: E402
+
+from gymnasium.error import ResetNeeded  # noqa: E402
+
+from vswrist_gym.envs.rewards import _sum_sq  # noqa: E402
+from vswrist_gym.envs.actions import check_action  # noqa: E402
+from vswrist_gym.envs.rewards import wrap_angle  # noqa: E402
+
+
+def _legacy_measure(self) -> None:
+    if not (self.reads_sensors or "tool_wrench" in self.cfg["observation"]):
+        self.sim.sync_kinematics()
+    self._posture = self.sim.posture()
+    self._defl = self.sim.deflections()
+    self._posture_list = self._posture.tolist()
+    self._defl_list = self._defl.tolist()
+    s = self.params.spring
+    c0, c1, c2 = (np.cosh(self._defl / s.delta0) - 1.0).tolist()
+    self._energy = float(2.0 * s.K * s.delta0 * (c0 + c1 + c2))
+    self._contact = self._contact_force()
+
+
+def _legacy_step(self, action):
+    if self._needs_reset:
+        raise ResetNeeded("step() called after the episode ended (terminated or truncated) or before the "
+                          "first reset(); call reset() to start an episode")
+    a = check_action(action, self.action_space.shape)
+    a = np.maximum(a, -1.0)  # = np.clip(a, -1, 1) (a is finite), a new array: the caller's is untouched
+    np.minimum(a, 1.0, out=a)
+    theta = self._motor_refs(a)
+    self._before_physics(self._t)
+    failure = None
+    try:
+        if self._latency > 0.0 and self._theta_prev is not None:
+            self.sim.step(self._latency)
+            self.sim.set_motor_references(theta)
+            self.sim.step(self.ctrl_dt - self._latency, restart_peak=False)
+        else:
+            self.sim.set_motor_references(theta)
+            self.sim.step(self.ctrl_dt)
+    except self._SimulationError as exc:
+        failure = str(exc)
+    self._theta_prev = theta
+    self._step += 1
+    self._t = self._step * self.ctrl_dt
+    _legacy_measure(self)
+    if failure is None and not all(x - x == 0.0 for x in self._posture_list + self._defl_list):  # finite?
+        failure = f"non-finite state at t = {self._t:.3f} s"
+    # the physics' validity: measured before a failure resets the simulator (MuJoCo has then already reset
+    # its state, so the opening is unknown: inf)
+    self._closure = self.sim.loop_closure_peak() if failure is None else math.inf
+    if failure is not None:
+        # the physics diverged (MuJoCo resets its state when it does): end the episode with the
+        # termination penalty, from a clean, finite state so that the last observation is valid
+        self.sim.reset()
+        self.sim.apply_wrench(np.zeros(3), np.zeros(3))
+        _legacy_measure(self)
+    self._target = self._reference(self._t)
+    self._peak_contact = max(self._peak_contact, self._contact)
+    self._sum_contact_sq += self._contact * self._contact
+
+    err = wrap_angle(self._posture - self._target)
+    energy = self._energy
+    self._history["error"].append(err)
+    self._history["energy"].append(energy)
+    self._history["contact"].append(self._contact)
+    sc = self.cfg["scales"]
+    raw = {
+        "tracking": -math.sqrt(_sum_sq(self._tracking_error(err))) / sc["tracking"],
+        "energy": -energy / sc["energy"],
+        "action_rate": -_sum_sq(a - self._prev_action) / a.size,
+        "termination": -1.0 if failure is not None else 0.0,
+    }
+    raw.update(self._task_reward_terms(err))
+    weighted = {f"reward_{k}": w * raw[k] for k, w in self.reward_weights.items()}
+    reward = 0.0
+    for v in weighted.values():
+        reward += v
+    self._prev_action = a.astype(np.float32)
+    terminated = failure is not None
+    time_up = not terminated and self._step >= self.episode_steps
+    # closure_truncate: the welds opened past closure_warn, so the physics from here on is not trustworthy
+    cut = not terminated and self._closure_truncate and self._closure > self._closure_warn
+    truncated = time_up or cut
+    self._needs_reset = terminated or truncated
+    obs = self._observation()
+    info = self._info(weighted, final=time_up and not cut, err=err)
+    info["posture_error_vec"] = err
+    if terminated:
+        info["simulation_error"] = failure
+    return obs, float(reward), terminated, truncated, info
+
+
+def _rss_mib() -> float:
+    """Resident memory of this process (MiB), from /proc (Linux); NaN elsewhere."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def bench_single_old_new(name: str, steps: int, repeats: int) -> dict:
+    """us per step of the single env (gym.make) with today's step, with the pre-batch step, and of a batch of
+    one, interleaved run by run on the same actions (CPU time, pinned)."""
+    import types
+
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    env = gym.make(f"VSWrist/{name}-v0")
+    u = env.unwrapped
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps,) + env.action_space.shape).astype(np.float32)
+    new_step = u.step
+    old_step = types.MethodType(_legacy_step, u)
+    batch = gym.make_vec(f"VSWrist/{name}-v0", num_envs=1, vectorization_mode="vector_entry_point", threads=1)
+    res: dict[str, list] = {"new": [], "old": [], "batch1": []}
+
+    def run_single(step) -> float:
+        u.step = step
+        env.reset(seed=0)
+        t0 = _clock()
+        for a in actions:
+            _, _, term, trunc, _ = env.step(a)
+            if term or trunc:
+                env.reset()
+        return 1e6 * (_clock() - t0) / len(actions)
+
+    def run_batch() -> float:
+        batch.reset(seed=0)
+        t0 = _clock()
+        for a in actions:
+            batch.step(a[None])
+        return 1e6 * (_clock() - t0) / len(actions)
+
+    run_single(new_step), run_single(old_step), run_batch()  # warm-up
+    for _ in range(repeats):
+        res["old"].append(run_single(old_step))
+        res["new"].append(run_single(new_step))
+        res["batch1"].append(run_batch())
+    env.close()
+    batch.close()
+    out = {k: statistics.median(v) for k, v in res.items()}
+    out["new_over_old"] = out["new"] / out["old"]
+    out["batch1_over_old"] = out["batch1"] / out["old"]
+    return out
+
+
+def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> dict:
+    """Env steps/s of a batch of ``n`` worlds on ``threads`` physics threads, and (one thread) the ratio of the
+    batch's whole step to the time inside the worlds' physics (``WristSim.step``)."""
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    venv = gym.make_vec(f"VSWrist/{name}-v0", num_envs=n, vectorization_mode="vector_entry_point", threads=threads)
+    timers = []
+    for e in venv.unwrapped.envs:
+        t = _Timer(e.sim.step)
+        e.sim.step = t
+        timers.append(t)
+    rng = np.random.default_rng(0)
+    n_vec = max(steps // n, 10)
+    acts = rng.uniform(-1, 1, (n_vec, n) + venv.single_action_space.shape).astype(np.float32)
+    venv.reset(seed=0)
+    for a in acts[: max(2, n_vec // 10)]:
+        venv.step(a)
+    for t in timers:
+        t.total = 0.0
+    clock = _clock if pinned else time.perf_counter
+    t0 = clock()
+    for a in acts:
+        venv.step(a)
+    dt = clock() - t0
+    venv.close()
+    out = {"task": name, "n": n, "threads": threads, "steps_per_s": n * n_vec / dt,
+           "us_per_world_step": 1e6 * dt / (n * n_vec)}
+    if threads == 1:
+        out["overhead_ratio"] = dt / sum(t.total for t in timers)
+    return out
+
+
+def bench_memory(name: str, n: int) -> dict:
+    """Resident memory (MiB) of ``n`` worlds, in a fresh interpreter: after reset and 10 steps, minus the
+    interpreter with everything imported."""
+    import subprocess
+    import sys
+
+    code = f"""
+import gymnasium as gym, numpy as np, vswrist_gym, stable_baselines3
+from vswrist_gym.tools.bench import _rss_mib
+import vswrist_gym.envs.batch
+base = _rss_mib()
+v = gym.make_vec("VSWrist/{name}-v0", num_envs={n}, vectorization_mode="vector_entry_point")
+v.reset(seed=0)
+for _ in range(10):
+    v.step(v.action_space.sample())
+print(_rss_mib() - base, _rss_mib())
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=1800)
+    if res.returncode != 0:
+        return {"task": name, "n": n, "error": res.stderr.strip().splitlines()[-1:]}
+    worlds, total = map(float, res.stdout.split()[-2:])
+    return {"task": name, "n": n, "worlds_mib": worlds, "process_mib": total}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="vswrist bench-env", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+                    help=f"short names or full ids (default all: {' '.join(TASKS)})")
+    ap.add_argument("--steps", type=int, default=3000, help="env steps per timed run (default 3000)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs per environment; the median is reported")
+    ap.add_argument("--no-ant", action="store_true", help="skip the Ant-v5 reference")
+    ap.add_argument("--vec", action="store_true", help="also measure SubprocVecEnv scaling on 1 and 2 workers")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="also time the parts of each task's step outside the physics (a separate run)")
+    ap.add_argument("--batch", type=int, nargs="?", const=32, default=0, metavar="N",
+                    help="also the batched core (gym.make_vec): N worlds (default 32) on 1 and --threads threads, "
+                         "and the single env against its pre-batch step; ends with the targets table")
+    ap.add_argument("--threads", type=int, default=2, help="physics threads of the threaded batch run (default 2)")
+    ap.add_argument("--memory", type=int, default=0, metavar="N",
+                    help="also the resident memory of N worlds of the heaviest task (Insertion), e.g. 256, in a "
+                         "fresh interpreter (with or without --batch)")
+    ap.add_argument("--json", metavar="PATH", help="write the results as JSON")
+    args = ap.parse_args(argv)
+    if args.steps < 10 or args.repeats < 1:
+        ap.error("--steps must be >= 10 and --repeats >= 1")
+    if args.batch < 0 or args.threads < 1 or args.memory < 0:
+        ap.error("--batch and --memory must be >= 0 worlds, --threads >= 1")
+
+    cpu = _pin_one_core()
+    results = {"date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "machine": platform.node(),
+               "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+               "pinned_cpu": cpu, "steps": args.steps, "repeats": args.repeats, "envs": []}
+    print(f"vswrist bench-env: {args.steps} steps x {args.repeats} runs (median), pinned to CPU {cpu}, "
+          f"{results['date']}, {results['cpus']} CPUs")
+    ant = None if args.no_ant else bench_ant(args.steps, args.repeats)
+    if ant is not None:
+        results["ant"] = ant
+    header = (f"{'env':<18}{'steps/s':>9}{'x Ant-v5':>9}{'ctrl Hz':>8}{'substeps':>9}{'env/physics':>12}"
+              f"{'physics us':>11}{'other us':>9}{'budget 1.25':>12}{'budget Ant':>11}")
+    print(header)
+    print("-" * len(header))
+    ant_ok = ant is not None and "error" not in ant
+
+    def row(label: str, r: dict, rel: str) -> None:
+        budget_ratio = 0.25 * r["physics_us"]
+        budget_ant = f"{1e6 / ant['steps_per_s'] - r['physics_us']:.0f}" if ant_ok and r is not ant else "-"
+        print(f"{label:<18}{r['steps_per_s']:>9.0f}{rel:>9}{r['ctrl_hz']:>8.0f}{r['substeps']:>9d}"
+              f"{r['overhead_ratio']:>12.2f}{r['physics_us']:>11.0f}{r['other_us']:>9.0f}{budget_ratio:>12.0f}"
+              f"{budget_ant:>11}")
+
+    if ant_ok:
+        row("Ant-v5", ant, "1.00")
+    elif ant is not None:
+        print(f"Ant-v5 unavailable: {ant['error']}")
+    for name in args.tasks:
+        r = bench_task(name, args.steps, args.repeats, breakdown=args.breakdown)
+        if ant_ok:
+            r["vs_ant"] = r["steps_per_s"] / ant["steps_per_s"]
+        results["envs"].append(r)
+        row("VSWrist/" + name, r, f"{r['vs_ant']:.2f}" if "vs_ant" in r else "-")
+    print("env/physics: CPU time of env.step over the CPU time spent in the physics step of the same run "
+          "(targets: >= Ant-v5, >= 2000 steps/s, <= 1.25).\nother us: time per step outside the physics; "
+          "budget 1.25 = 0.25 x physics, budget Ant = Ant-v5's whole step - this task's physics: the most it "
+          "may be for each target")
+    if args.breakdown:
+        labels = list(results["envs"][0]["breakdown_us"])
+        print("\nwhere a step's time goes (us per env step, a second run with more timers):")
+        print(f"{'env':<18}" + "".join(f"{k:>15}" for k in labels))
+        for r in results["envs"]:
+            print(f"{'VSWrist/' + r['task']:<18}" + "".join(f"{r['breakdown_us'][k]:>15.1f}" for k in labels))
+    if args.vec:
+        try:
+            os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+        except (AttributeError, OSError):
+            pass
+        results["vec"] = []
+        print(f"\nSubprocVecEnv (all CPUs): {'task':<12}{'1 worker':>10}{'2 workers':>11}{'scaling':>9}")
+        for name in args.tasks:
+            v = bench_vec(name, args.steps)
+            results["vec"].append(v)
+            print(f"{'':<26}{name:<12}{v['workers_1']:>10.0f}{v['workers_2']:>11.0f}{v['scaling_2_over_1']:>9.2f}")
+    if args.batch or args.memory:
+        _batched(args, results, cpu)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(results, fh, indent=2)
+        print(f"results written to {args.json}")
+    return 0
+
+
+def _batched(args, results: dict, cpu) -> None:
+    """The batched core's figures and the targets table (issue 14)."""
+    n, rows = args.batch, []
+    results["batch"] = {"n": n, "tasks": [], "single": []}
+    tasks = args.tasks if n else []
+    if n:
+        print(f"\nbatched core: {n} worlds; 1 thread pinned to CPU {cpu} (CPU time), then {args.threads} threads "
+              f"on all CPUs (wall time); single env against its pre-batch step (CPU time, pinned)")
+        print(f"{'task':<12}{'1 thr st/s':>11}{'env/phys':>9}{f'{args.threads} thr st/s':>11}{'speedup':>8}"
+              f"{'single us':>10}{'old us':>8}{'new/old':>8}{'batch1 us':>10}")
+    for name in tasks:
+        if cpu is not None:
+            os.sched_setaffinity(0, {cpu})
+        one = bench_batch(name, n, args.steps, 1, pinned=True)
+        single = bench_single_old_new(name, max(args.steps // 2, 10), args.repeats)
+        try:
+            os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+        except (AttributeError, OSError):
+            pass
+        many = bench_batch(name, n, args.steps, args.threads, pinned=False)
+        one_wall = bench_batch(name, n, args.steps, 1, pinned=False)  # the same clock as the threaded run
+        speed = many["steps_per_s"] / one_wall["steps_per_s"]
+        results["batch"]["tasks"].append({"one_thread": one, "threads": many, "one_thread_wall": one_wall,
+                                          "speedup": speed})
+        results["batch"]["single"].append(dict(single, task=name))
+        print(f"{name:<12}{one['steps_per_s']:>11.0f}{one['overhead_ratio']:>9.2f}{many['steps_per_s']:>11.0f}"
+              f"{speed:>8.2f}{single['new']:>10.0f}{single['old']:>8.0f}{single['new_over_old']:>8.2f}"
+              f"{single['batch1']:>10.0f}")
+        rows.append((name, one, speed, single))
+    mem = bench_memory("Insertion", args.memory) if args.memory else None
+    if mem is not None:
+        results["batch"]["memory"] = mem
+    ant = results.get("ant") or {}
+    print("\ntargets (issue 14)")
+    print(f"{'target':<52}{'measured':>12}{'goal':>10}{'met':>5}")
+    table = []
+    if rows:
+        worst_ratio = max(r[1]["overhead_ratio"] for r in rows)
+        worst_speed = min(r[2] for r in rows)
+        worst_single = max(r[3]["new_over_old"] for r in rows)
+        table = [(f"batch N={n}, 1 thread: env step / physics (worst task)", f"{worst_ratio:.2f}", "<= 1.10",
+                  worst_ratio <= 1.10),
+                 (f"batch N={n}: {args.threads} threads / 1 thread env steps/s (worst)", f"{worst_speed:.2f}x",
+                  ">= 1.8x", worst_speed >= 1.8),
+                 ("single env step / pre-batch single env step (worst)", f"{worst_single:.2f}", "<= 1.10",
+                  worst_single <= 1.10)]
+    if "overhead_ratio" in ant:
+        table.insert(1, ("Ant-v5 single env: env step / physics (reference)", f"{ant['overhead_ratio']:.2f}", "-",
+                         None))
+    if mem is not None and "worlds_mib" in mem:
+        table.append((f"memory of {mem['n']} Insertion worlds (MiB)", f"{mem['worlds_mib']:.0f}", "< 2048",
+                      mem["worlds_mib"] < 2048))
+    elif mem is not None:
+        table.append((f"memory of {mem['n']} Insertion worlds", "error", "< 2048", False))
+    for label, value, goal, ok in table:
+        print(f"{label:<52}{value:>12}{goal:>10}{'-' if ok is None else ('yes' if ok else 'NO'):>5}")
+    print("training speed: python results/training_speed.py (a separate command: it trains)")
+    results["batch"]["targets"] = [{"target": t[0], "measured": t[1], "goal": t[2], "met": t[3]} for t in table]
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
