@@ -1,13 +1,22 @@
-"""Per-substep sinh springs and motor low-pass as MuJoCo callbacks, compiled C with a Python fallback.
+"""The VS-Wrist's sinh springs and motor setpoint dynamics inside MuJoCo's substeps: an engine plugin in C,
+with Python callbacks as the fallback where no C compiler is available.
 
-MuJoCo callbacks (``mjcb_passive``, ``mjcb_act_dyn``) are process-global. These callbacks read every parameter
-from the model they are called with (custom numeric ``vswrist_spring``, actuator ``dynprm``), so wrists with
-different springs share them safely; for any model without the ``vswrist_spring`` / ``vswrist_motor`` fields
-they call whatever callback was installed before (or do nothing), e.g. Gymnasium's Ant in the same process.
+The compiled path registers two MuJoCo engine plugins (``mjpPlugin``), ``vswrist.drive`` (passive force and
+actuator capability: one instance per motor, the series spring and the setpoint dynamics, configured per
+instance) and ``vswrist.closure`` (the loop-closure monitor). A model names them in its ``<extension>``
+section (``builder.model_xml(physics="plugin")``), so it carries its own springs and motors: it runs in any
+MuJoCo program that has loaded the plugin library (``load_plugin()``, ``mujoco.mj_loadPluginLibrary``), and
+no other model in the process is touched. All mutable state lives in each ``mjData`` (``plugin_data``,
+``plugin_state``), none in the library, so separate ``mjData`` may step on separate threads.
 
 The C source below is compiled once per MuJoCo version with the system C compiler against the headers and
-library shipped in the ``mujoco`` wheel, into a user cache directory (nothing is downloaded). Without a
-compiler the same callbacks run in Python (correct, several times slower): ``backend()`` says which is active.
+library shipped in the ``mujoco`` wheel, into a user cache directory (nothing is downloaded).
+
+Fallback (no compiler, or ``VSWRIST_NATIVE=0``): the same physics as MuJoCo's process-global callbacks
+``mjcb_passive`` / ``mjcb_act_dyn`` written in Python (correct, several times slower), reading each model's
+parameters from its custom numeric ``vswrist_spring`` and actuator ``dynprm`` (``physics="callbacks"``);
+models without those fields are passed to whatever callback was installed before. Such a model cannot be
+exported: outside this package nothing applies its springs. ``backend()`` says which path is active.
 """
 
 from __future__ import annotations
@@ -27,42 +36,267 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from .builder import CLOSURE_FIELDS, CLOSURE_TAG, MOTOR_TAG, SPRING_FIELDS, SPRING_TAG
+from .builder import CLOSURE_FIELDS, CLOSURE_PLUGIN, CLOSURE_TAG, DRIVE_PLUGIN, MOTOR_TAG, SPRING_FIELDS, SPRING_TAG
 
-C_SOURCE = r"""
+PLUGIN_VERSION = 1  # bump with any change of the plugins' configuration or behaviour
+
+PLUGIN_SOURCE = r"""
+/* The VS-Wrist's springs and motor setpoint dynamics as MuJoCo engine plugins.
+
+   vswrist.drive (passive force + actuator capability), one instance per motor. The bodies that reference the
+   instance (<body><plugin instance="..."/></body>) each carry exactly one hinge or slide joint:
+   - two bodies and config K, delta0: a series sinh spring between their joints, tau = -2 K sinh(delta/delta0),
+     delta = q(second body) - q(first body) in body order; +tau on the second joint, -tau on the first (the law
+     is odd, so the order changes no force);
+   - config time_constant, speed_limit, lead: the setpoint dynamics of every actuator with dyntype="user" on
+     one of those joints, d act/dt = clip((ctrl - act) / time_constant, +-speed_limit), kept within +-lead
+     of the joint angle (the actuator's own gain/bias make the PD loop from act).
+   vswrist.closure (passive force capability, no force): one body references it; the largest violation of
+   the welds between that body and others (origin distance in m or frame angle in rad, whichever is larger)
+   seen at any evaluation of the passive forces is kept in the instance's plugin state.
+
+   All mutable state lives in the mjData (plugin_data: the resolved addresses; plugin_state: the closure
+   peak); nothing is global, so separate mjData can step on separate threads. Configuration errors are
+   reported by the model compiler (nstate runs there) or, for the actuators, which the
+   compiler adds after the plugins, when an mjData is made. */
 #include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <mujoco/mujoco.h>
 
-#define SPRING_FIELDS %(fields)d
-#define CLOSURE_FIELDS %(closure_fields)d
+#define VSWRIST_MAX_SERVO 8
+#define VSWRIST_ERR 400
 
-static mjfGeneric prev_passive = 0;
-static mjfAct prev_act_dyn = 0;
+typedef struct {
+  int nbody, body[2], dof[2], qadr[2];
+  int spring;
+  mjtNum twoK, inv_d0;
+  int nservo, servo[VSWRIST_MAX_SERVO];
+  mjtNum tc, vmax, lead;
+} Drive;
 
-static const mjtNum* find_numeric(const mjModel* m, const char* name, int size) {
-  for (int i = 0; i < m->nnumeric; i++) {
-    if (m->numeric_size[i] == size && strcmp(m->names + m->name_numericadr[i], name) == 0) {
-      return m->numeric_data + m->numeric_adr[i];
+static const char* drive_attributes[] = {"K", "delta0", "time_constant", "speed_limit", "lead"};
+
+static const char* instance_name(const mjModel* m, int instance) {
+  return m->names + m->name_pluginadr[instance];
+}
+
+/* 1: a finite number was given; 0: key absent; -1: not a number */
+static int config_number(const mjModel* m, int instance, const char* key, mjtNum* out) {
+  const char* s = mj_getPluginConfig(m, instance, key);
+  if (!s || !s[0]) return 0;
+  char* end = 0;
+  const double v = strtod(s, &end);
+  while (end && (*end == ' ' || *end == '\t' || *end == '\n')) end++;
+  if (end == s || (end && *end) || !isfinite(v)) return -1;
+  *out = v;
+  return 1;
+}
+
+/* with_actuators = 0 in the compiler, where the actuators are not in the model yet */
+static int drive_resolve(const mjModel* m, int instance, Drive* s, char* err, int with_actuators) {
+  const char* name = instance_name(m, instance);
+  memset(s, 0, sizeof(*s));
+  for (int b = 0; b < m->nbody; b++) {
+    if (m->body_plugin[b] != instance) continue;
+    if (s->nbody == 2) {
+      snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': more than two bodies reference it", name);
+      return 0;
     }
+    const int j = m->body_jntadr[b];
+    if (m->body_jntnum[b] != 1 || (m->jnt_type[j] != mjJNT_HINGE && m->jnt_type[j] != mjJNT_SLIDE)) {
+      snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': body '%s' must have exactly one hinge or slide "
+               "joint", name, m->names + m->name_bodyadr[b]);
+      return 0;
+    }
+    s->body[s->nbody] = b;
+    s->dof[s->nbody] = m->jnt_dofadr[j];
+    s->qadr[s->nbody] = m->jnt_qposadr[j];
+    s->nbody++;
+  }
+  if (s->nbody == 0) {
+    snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': no body references it (add <plugin instance=\"%s\"/> "
+             "to the motor's body, and to the body on the spring's other side)", name, name);
+    return 0;
+  }
+  mjtNum K = 0, d0 = 0;
+  const int hk = config_number(m, instance, "K", &K), hd = config_number(m, instance, "delta0", &d0);
+  if (hk < 0 || hd < 0 || hk != hd || (hk && !(K > 0 && d0 > 0))) {
+    snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': config K (N m) and delta0 (rad) must both be positive "
+             "numbers, or both be left out (a motor without spring)", name);
+    return 0;
+  }
+  if (hk) {
+    if (s->nbody != 2) {
+      snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': a spring (K, delta0) needs two bodies referencing "
+               "the instance, got %d", name, s->nbody);
+      return 0;
+    }
+    s->spring = 1;
+    s->twoK = 2.0 * K;
+    s->inv_d0 = 1.0 / d0;
+  }
+  for (int a = 0; with_actuators && a < m->nu; a++) {
+    if (m->actuator_trntype[a] != mjTRN_JOINT || m->actuator_dyntype[a] != mjDYN_USER) continue;
+    const int j = m->actuator_trnid[2 * a];
+    for (int k = 0; k < s->nbody; k++) {
+      if (m->body_jntadr[s->body[k]] != j) continue;
+      if (m->actuator_actnum[a] != 1 || s->nservo == VSWRIST_MAX_SERVO) {
+        snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': actuator '%s' needs exactly one activation "
+                 "(and at most %d actuators per instance)", name, m->names + m->name_actuatoradr[a],
+                 VSWRIST_MAX_SERVO);
+        return 0;
+      }
+      s->servo[s->nservo++] = a;
+    }
+  }
+  const int ht = config_number(m, instance, "time_constant", &s->tc);
+  const int hv = config_number(m, instance, "speed_limit", &s->vmax);
+  const int hl = config_number(m, instance, "lead", &s->lead);
+  if (ht < 0 || hv < 0 || hl < 0 || ht != hv || hv != hl || (ht && !(s->tc > 0 && s->vmax > 0 && s->lead > 0))) {
+    snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': config time_constant (s), speed_limit (rad/s) and lead "
+             "(rad) must all be positive numbers, or all be left out", name);
+    return 0;
+  }
+  if (with_actuators && ht && !s->nservo) {
+    snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': motor constants given but no actuator with "
+             "dyntype=\"user\" acts on the joints of the bodies that reference it", name);
+    return 0;
+  }
+  if (with_actuators && !ht && s->nservo) {
+    snprintf(err, VSWRIST_ERR, "vswrist.drive instance '%s': actuator '%s' has dyntype=\"user\" on its joint but the "
+             "instance has no time_constant, speed_limit, lead", name, m->names + m->name_actuatoradr[s->servo[0]]);
+    return 0;
+  }
+  return 1;
+}
+
+/* runs in the model compiler: configuration errors become compiler errors naming the instance */
+static int drive_nstate(const mjModel* m, int instance) {
+  Drive s;
+  char err[VSWRIST_ERR];
+  if (!drive_resolve(m, instance, &s, err, 0)) mju_error("%s", err);
+  return 0;
+}
+
+static int drive_init(const mjModel* m, mjData* d, int instance) {
+  Drive* s = (Drive*)malloc(sizeof(Drive));
+  char err[VSWRIST_ERR];
+  if (!s) return -1;
+  if (!drive_resolve(m, instance, s, err, 1)) {
+    free(s);
+    mju_error("%s", err);  /* mj_makeData's own message would not say what is wrong */
+  }
+  d->plugin_data[instance] = (uintptr_t)s;
+  return 0;
+}
+
+static void drive_destroy(mjData* d, int instance) {
+  free((void*)d->plugin_data[instance]);
+  d->plugin_data[instance] = 0;
+}
+
+static void drive_copy(mjData* dest, const mjModel* m, const mjData* src, int instance) {
+  const Drive* from = (const Drive*)src->plugin_data[instance];
+  Drive* to = (Drive*)dest->plugin_data[instance];
+  if (!from || to == from) return;
+  if (!to) {
+    to = (Drive*)malloc(sizeof(Drive));
+    if (!to) mju_error("vswrist.drive: out of memory copying mjData");
+    dest->plugin_data[instance] = (uintptr_t)to;
+  }
+  memcpy(to, from, sizeof(Drive));
+}
+
+static void drive_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance) {}
+
+/* the spring: tau = -2 K sinh((q_b - q_a) / delta0), +tau on joint b, -tau on joint a */
+static void drive_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
+  if (!(capability_bit & mjPLUGIN_PASSIVE)) return;  /* actuator forces: the actuators' own gain and bias */
+  const Drive* s = (const Drive*)d->plugin_data[instance];
+  if (!s || !s->spring) return;
+  const mjtNum delta = d->qpos[s->qadr[1]] - d->qpos[s->qadr[0]];
+  const mjtNum tau = -s->twoK * sinh(delta * s->inv_d0);
+  d->qfrc_passive[s->dof[1]] += tau;
+  d->qfrc_passive[s->dof[0]] -= tau;
+}
+
+/* Servo setpoint: a rate-limited first-order low-pass of the reference (ctrl), kept within +-lead of the
+   joint angle q (following-error limit, lead = kd vmax / kp): the PD loop kp (act - q) - kd qdot then never
+   asks for more than vmax and does not wind up when the torque saturates. */
+static void drive_act_dot(const mjModel* m, mjData* d, int instance) {
+  const Drive* s = (const Drive*)d->plugin_data[instance];
+  if (!s) return;
+  const mjtNum tb = 2.0 * m->opt.timestep;
+  for (int k = 0; k < s->nservo; k++) {
+    const int id = s->servo[k];
+    const int adr = m->actuator_actadr[id];
+    const mjtNum act = d->act[adr];
+    const int jnt = m->actuator_trnid[2 * id];
+    const mjtNum q = d->qpos[m->jnt_qposadr[jnt]], qdot = d->qvel[m->jnt_dofadr[jnt]];
+    mjtNum rate = (d->ctrl[m->actuator_ctrladr[id]] - act) / s->tc;
+    if (rate > s->vmax) rate = s->vmax;
+    if (rate < -s->vmax) rate = -s->vmax;
+    const mjtNum hi = qdot + (q + s->lead - act) / tb, lo = qdot + (q - s->lead - act) / tb;
+    if (rate > hi) rate = hi;
+    if (rate < lo) rate = lo;
+    d->act_dot[adr] = rate;
+  }
+}
+
+/* ------------------------------------------------------------------------------- vswrist.closure */
+static int closure_body(const mjModel* m, int instance) {
+  for (int b = 0; b < m->nbody; b++) {
+    if (m->body_plugin[b] == instance) return b;
+  }
+  return -1;
+}
+
+static int closure_nstate(const mjModel* m, int instance) {
+  int n = 0;
+  for (int b = 0; b < m->nbody; b++) n += m->body_plugin[b] == instance;
+  if (n != 1) {
+    mju_error("vswrist.closure instance '%s': exactly one body must reference it, got %d",
+              instance_name(m, instance), n);
+  }
+  return 1;
+}
+
+/* the equality constraints are not in the model yet when the compiler asks for nstate */
+static int closure_init(const mjModel* m, mjData* d, int instance) {
+  const int c = closure_body(m, instance);
+  int welds = 0;
+  for (int e = 0; c >= 0 && e < m->neq; e++) {
+    welds += m->eq_type[e] == mjEQ_WELD && m->eq_objtype[e] == mjOBJ_BODY &&
+             (m->eq_obj1id[e] == c || m->eq_obj2id[e] == c);
+  }
+  if (!welds) {
+    mju_error("vswrist.closure instance '%s': no weld joins the body that references it to another body",
+              instance_name(m, instance));
   }
   return 0;
 }
 
-/* Loop-closure monitor: the largest weld violation (m or rad, as WristSim.loop_closure_error: the distance
-   between the coupler's and a leg end's origins, or the angle between their frames) seen at any evaluation is
-   kept in userdata[slot]. Body poses are current here (mj_fwdPosition runs before mj_passive), so a step of n
-   substeps checks the state at the start of each of them, for a few dozen flops each. */
-static void vswrist_closure(const mjModel* m, mjData* d) {
-  const mjtNum* c = find_numeric(m, "%(closure)s", CLOSURE_FIELDS);
-  if (!c) return;
-  const int slot = (int)c[0], cb = (int)c[1];
-  if (slot < 0 || slot >= m->nuserdata || cb < 0) return;
-  const mjtNum* pc = d->xpos + 3 * cb;
-  const mjtNum* qc = d->xquat + 4 * cb;
-  mjtNum worst = d->userdata[slot];
-  for (int k = 2; k < CLOSURE_FIELDS; k++) {
-    const int e = (int)c[k];
+static void closure_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance) {
+  plugin_state[0] = 0;
+}
+
+/* Body poses are current here (mj_fwdPosition runs before mj_passive), so a step of n substeps checks the
+   state at the start of each of them, for a few dozen flops each. */
+static void closure_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
+  if (!(capability_bit & mjPLUGIN_PASSIVE)) return;
+  const int c = closure_body(m, instance);
+  if (c < 0) return;
+  mjtNum* peak = d->plugin_state + m->plugin_stateadr[instance];
+  const mjtNum* pc = d->xpos + 3 * c;
+  const mjtNum* qc = d->xquat + 4 * c;
+  mjtNum worst = peak[0];
+  for (int k = 0; k < m->neq; k++) {
+    if (m->eq_type[k] != mjEQ_WELD || m->eq_objtype[k] != mjOBJ_BODY) continue;
+    const int e = m->eq_obj1id[k] == c ? m->eq_obj2id[k] : (m->eq_obj2id[k] == c ? m->eq_obj1id[k] : -1);
+    if (e < 0) continue;
     const mjtNum* pe = d->xpos + 3 * e;
     const mjtNum* qe = d->xquat + 4 * e;
     const mjtNum dx = pe[0] - pc[0], dy = pe[1] - pc[1], dz = pe[2] - pc[2];
@@ -73,68 +307,43 @@ static void vswrist_closure(const mjModel* m, mjData* d) {
     if (dist > worst) worst = dist;
     if (angle > worst) worst = angle;
   }
-  d->userdata[slot] = worst;
+  peak[0] = worst;
 }
 
-/* tau = -2 K sinh((q1 - theta) / delta0): +tau on the leg's first joint, -tau on the motor rotor. */
-static void vswrist_passive(const mjModel* m, mjData* d) {
-  const mjtNum* p = find_numeric(m, "%(spring)s", SPRING_FIELDS);
-  if (!p) {
-    if (prev_passive) prev_passive(m, d);
-    return;
-  }
-  const mjtNum twoK = 2.0 * p[0], inv_d0 = 1.0 / p[1];
-  for (int k = 0; k < 3; k++) {
-    const mjtNum delta = d->qpos[(int)p[8 + k]] - d->qpos[(int)p[11 + k]];
-    const mjtNum tau = -twoK * sinh(delta * inv_d0);
-    d->qfrc_passive[(int)p[2 + k]] += tau;
-    d->qfrc_passive[(int)p[5 + k]] -= tau;
-  }
-  vswrist_closure(m, d);
-}
+int vswrist_plugin_version(void) { return @VERSION@; }
 
-/* Servo setpoint: a rate-limited first-order low-pass of the reference (ctrl),
-   d act/dt = clip((ctrl - act) / T, -vmax, vmax), kept within +-lead of the motor angle q (following-error
-   limit, lead = kd vmax / kp): the PD loop kp (act - q) - kd qdot then never asks for more than vmax and does
-   not wind up when the torque saturates. dynprm = (T, vmax, lead). */
-static mjtNum vswrist_act_dyn(const mjModel* m, const mjData* d, int id) {
-  if (!find_numeric(m, "%(motor)s", 1)) {
-    return prev_act_dyn ? prev_act_dyn(m, d, id) : 0.0;
-  }
-  const mjtNum* prm = m->actuator_dynprm + id * mjNDYN;
-  const mjtNum act = d->act[m->actuator_actadr[id]];
-  const int jnt = m->actuator_trnid[2 * id];
-  const mjtNum q = d->qpos[m->jnt_qposadr[jnt]], qdot = d->qvel[m->jnt_dofadr[jnt]];
-  const mjtNum tb = 2.0 * m->opt.timestep;
-  mjtNum rate = (d->ctrl[id] - act) / prm[0];
-  if (rate > prm[1]) rate = prm[1];
-  if (rate < -prm[1]) rate = -prm[1];
-  const mjtNum hi = qdot + (q + prm[2] - act) / tb, lo = qdot + (q - prm[2] - act) / tb;
-  if (rate > hi) rate = hi;
-  if (rate < lo) rate = lo;
-  return rate;
-}
+mjPLUGIN_LIB_INIT(vswrist_plugins) {
+  mjpPlugin drive;
+  mjp_defaultPlugin(&drive);
+  drive.name = "@DRIVE@";
+  drive.capabilityflags = mjPLUGIN_PASSIVE | mjPLUGIN_ACTUATOR;
+  drive.nattribute = sizeof(drive_attributes) / sizeof(drive_attributes[0]);
+  drive.attributes = drive_attributes;
+  drive.nstate = drive_nstate;
+  drive.init = drive_init;
+  drive.destroy = drive_destroy;
+  drive.copy = drive_copy;
+  drive.reset = drive_reset;
+  drive.compute = drive_compute;
+  drive.actuator_act_dot = drive_act_dot;
+  mjp_registerPlugin(&drive);
 
-int vswrist_install(void) {
-  if (mjcb_passive != vswrist_passive) { prev_passive = mjcb_passive; mjcb_passive = vswrist_passive; }
-  if (mjcb_act_dyn != vswrist_act_dyn) { prev_act_dyn = mjcb_act_dyn; mjcb_act_dyn = vswrist_act_dyn; }
-  return 1;
+  mjpPlugin closure;
+  mjp_defaultPlugin(&closure);
+  closure.name = "@CLOSURE@";
+  closure.capabilityflags = mjPLUGIN_PASSIVE;
+  closure.nattribute = 0;
+  closure.attributes = 0;
+  closure.nstate = closure_nstate;
+  closure.init = closure_init;
+  closure.reset = closure_reset;
+  closure.compute = closure_compute;
+  mjp_registerPlugin(&closure);
 }
+""".replace("@DRIVE@", DRIVE_PLUGIN).replace("@CLOSURE@", CLOSURE_PLUGIN).replace(
+    "@VERSION@", str(PLUGIN_VERSION))
 
-int vswrist_installed(void) {
-  return mjcb_passive == vswrist_passive && mjcb_act_dyn == vswrist_act_dyn;
-}
-
-void vswrist_uninstall(void) {
-  if (mjcb_passive == vswrist_passive) mjcb_passive = prev_passive;
-  if (mjcb_act_dyn == vswrist_act_dyn) mjcb_act_dyn = prev_act_dyn;
-  prev_passive = 0;
-  prev_act_dyn = 0;
-}
-""" % {"fields": SPRING_FIELDS, "spring": SPRING_TAG, "motor": MOTOR_TAG, "closure": CLOSURE_TAG,
-       "closure_fields": CLOSURE_FIELDS}
-
-_lib: ctypes.CDLL | None = None
+_plugin_path: Path | None = None  # the plugin library loaded into this process, if any
 _backend: str | None = None
 _py_prev: dict[str, object] = {}
 
@@ -149,12 +358,20 @@ def _cache_dir() -> Path:
 
 
 def _library_path() -> Path:
-    key = hashlib.sha256((C_SOURCE + mujoco.__version__ + sys.platform).encode()).hexdigest()[:16]
-    return _cache_dir() / f"vswrist_callbacks_{key}.so"
+    key = hashlib.sha256((PLUGIN_SOURCE + mujoco.__version__ + sys.platform).encode()).hexdigest()[:16]
+    return _cache_dir() / f"vswrist_plugin_{key}.so"
+
+
+def _libmujoco() -> Path:
+    mdir = _mujoco_dir()
+    libs = sorted(mdir.glob("libmujoco.so*")) or sorted(mdir.glob("libmujoco*.dylib"))
+    if not libs:
+        raise RuntimeError(f"libmujoco not found in {mdir}")
+    return libs[0]
 
 
 def compile_library(force: bool = False) -> Path:
-    """Compile the callbacks (once; atomically, safe with parallel processes) and return the library path."""
+    """Compile the plugin library (once; atomically, safe with parallel processes) and return its path."""
     target = _library_path()
     if target.is_file() and not force:
         return target
@@ -170,21 +387,53 @@ def compile_library(force: bool = False) -> Path:
     if compiler is None:
         raise RuntimeError("no C compiler (gcc/cc) found")
     mdir = _mujoco_dir()
-    libs = sorted(mdir.glob("libmujoco.so*")) or sorted(mdir.glob("libmujoco*.dylib"))
-    if not libs:
-        raise RuntimeError(f"libmujoco not found in {mdir}")
+    libmujoco = _libmujoco()
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
-        src = Path(tmp) / "vswrist_callbacks.c"
-        src.write_text(C_SOURCE)
+        src = Path(tmp) / "vswrist_plugin.c"
+        src.write_text(PLUGIN_SOURCE)
         out = Path(tmp) / target.name
-        cmd = [compiler, "-O2", "-shared", "-fPIC", f"-I{mdir / 'include'}", str(src), "-o", str(out),
-               str(libs[0]), f"-Wl,-rpath,{mdir}", "-lm"]
+        # -fexceptions: the plugin calls mju_error, which the Python bindings turn into a C++ exception that
+        # must unwind through these frames
+        cmd = [compiler, "-O2", "-shared", "-fPIC", "-fexceptions", f"-I{mdir / 'include'}", str(src), "-o",
+               str(out), str(libmujoco), f"-Wl,-rpath,{mdir}", "-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True)
         if res.returncode != 0:
-            raise RuntimeError(f"compiling the VS-Wrist callbacks failed: {' '.join(cmd)}\n{res.stderr}")
+            raise RuntimeError(f"compiling the VS-Wrist plugin failed: {' '.join(cmd)}\n{res.stderr}")
         os.replace(out, target)
     return target
+
+
+def load_plugin() -> Path:
+    """Compile (first use) and load the plugin library into this process; returns its path. Idempotent.
+
+    Raises RuntimeError where there is no C compiler or the plugins did not register."""
+    global _plugin_path
+    if _plugin_path is not None:
+        return _plugin_path
+    path = compile_library()
+    mujoco.mj_loadPluginLibrary(str(path))
+    core = ctypes.CDLL(str(_libmujoco()))  # the library the bindings use: dlopen returns the loaded one
+    core.mjp_getPlugin.restype = ctypes.c_void_p
+    core.mjp_getPlugin.argtypes = [ctypes.c_char_p, ctypes.c_void_p]
+    for name in (DRIVE_PLUGIN, CLOSURE_PLUGIN):
+        if not core.mjp_getPlugin(name.encode(), None):
+            raise RuntimeError(f"loading {path} did not register the MuJoCo plugin {name}")
+    _plugin_path = path
+    return path
+
+
+def plugin_library() -> Path | None:
+    """The path of the plugin library loaded into this process (None before ``load_plugin``)."""
+    return _plugin_path
+
+
+def mujoco_entry_point() -> None:
+    """``mujoco.plugins`` entry point: ``import mujoco`` calls it (for example in ``python -m mujoco.viewer``)
+    when vswrist-gym is installed, so exported wrists open there. Quiet where no compiler is available:
+    loading such a model then fails with MuJoCo's 'unknown plugin' error."""
+    with contextlib.suppress(OSError, RuntimeError):
+        load_plugin()
 
 
 # ----------------------------------------------------------------------------------- Python fallback
@@ -256,45 +505,49 @@ def _py_act_dyn(m, d, i) -> float:
 
 # ------------------------------------------------------------------------------------------ install
 def install(prefer: str = "auto") -> str:
-    """Install the callbacks process-wide (idempotent); returns the backend, "c" or "python".
+    """Make the springs and motors available to models built from now on; returns the backend, "c" (the
+    compiled plugin) or "python" (the fallback callbacks). Idempotent.
 
-    ``prefer="python"`` forces the Python callbacks (for comparison); ``VSWRIST_NATIVE=0`` does the same.
+    "c" loads the plugin library and removes the fallback callbacks if this module installed them: no global
+    callback remains. ``prefer="python"`` forces the fallback (for comparison), as does ``VSWRIST_NATIVE=0``.
     """
-    global _lib, _backend
+    global _backend
+    if prefer not in ("auto", "c", "python"):
+        raise ValueError(f"backend must be 'auto', 'c' or 'python', got {prefer!r}")
     if os.environ.get("VSWRIST_NATIVE", "1") == "0":
         prefer = "python"
     if prefer != "python":
         try:
-            if _lib is None:
-                _lib = ctypes.CDLL(str(compile_library()))
-            if _backend == "python":
-                _uninstall_python()
-            _lib.vswrist_install()
+            load_plugin()
+            _uninstall_python()
             _backend = "c"
             return _backend
         except (OSError, RuntimeError) as exc:
             if prefer == "c":
                 raise
-            warnings.warn(f"VS-Wrist native callbacks unavailable ({exc}); using the slower Python callbacks",
+            warnings.warn(f"VS-Wrist plugin unavailable ({exc}); using the slower Python callbacks",
                           RuntimeWarning, stacklevel=2)
-    if _backend == "c" and _lib is not None:
-        _lib.vswrist_uninstall()
+    ensure_callbacks()
+    _backend = "python"
+    return _backend
+
+
+def ensure_callbacks() -> None:
+    """Put the fallback callbacks in place (again), for models built with ``physics="callbacks"``."""
     if mujoco.get_mjcb_passive() is not _py_passive:
         _py_prev["passive"] = mujoco.get_mjcb_passive()
         mujoco.set_mjcb_passive(_py_passive)
     if mujoco.get_mjcb_act_dyn() is not _py_act_dyn:
         _py_prev["act_dyn"] = mujoco.get_mjcb_act_dyn()
         mujoco.set_mjcb_act_dyn(_py_act_dyn)
-    _backend = "python"
-    return _backend
 
 
 @contextlib.contextmanager
 def compiling():
     """Hold the Python callbacks off while MuJoCo compiles a model: the compiler may run the physics on a model
     the Python bindings cannot wrap yet, and the callback then fails inside the compiler. A model being
-    compiled needs no springs; the C callbacks read raw models and stay."""
-    if _backend != "python":
+    compiled needs no springs."""
+    if mujoco.get_mjcb_passive() is not _py_passive and mujoco.get_mjcb_act_dyn() is not _py_act_dyn:
         yield
         return
     saved = dict(_py_prev)
@@ -316,24 +569,30 @@ def _uninstall_python() -> None:
 
 
 def uninstall() -> None:
-    """Remove the callbacks (restoring the previous ones): a bare MuJoCo for benchmarks."""
+    """Remove the fallback callbacks (restoring the previous ones). The plugin library stays loaded (a
+    shared library cannot be unloaded safely); it acts only on models that name its plugins."""
     global _backend
-    if _backend == "c" and _lib is not None:
-        _lib.vswrist_uninstall()
-    elif _backend == "python":
-        _uninstall_python()
+    _uninstall_python()
     _backend = None
 
 
 def installed() -> bool:
-    """Whether the callbacks are currently in place (another library could have replaced them)."""
-    if _backend == "c" and _lib is not None:
-        return bool(_lib.vswrist_installed())
+    """Whether the active backend is in place (another library could have replaced the callbacks)."""
+    if _backend == "c":
+        return _plugin_path is not None
     if _backend == "python":
         return mujoco.get_mjcb_passive() is _py_passive and mujoco.get_mjcb_act_dyn() is _py_act_dyn
     return False
 
 
 def backend() -> str | None:
-    """"c", "python", or None when not installed."""
+    """"c" (plugin), "python" (fallback callbacks), or None when neither was installed."""
     return _backend
+
+
+def physics(backend_: str | None = None) -> str:
+    """The ``builder`` physics mode for a backend: "plugin" for "c", "callbacks" for "python"."""
+    b = backend_ or _backend
+    if b not in ("c", "python"):
+        raise ValueError(f"backend must be 'c' or 'python', got {b!r}")
+    return "plugin" if b == "c" else "callbacks"
