@@ -18,6 +18,7 @@ COMMANDS = {
     "train": ("vswrist_gym.agents.train:main", "train a PPO or SAC policy"),
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
+    "export": ("vswrist_gym.model.export:main", "write the wrist as a self-contained MJCF (MuJoCo plugin)"),
 }
 
 

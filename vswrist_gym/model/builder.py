@@ -87,10 +87,12 @@ def _check_physics(physics: str) -> None:
         raise ValueError(f"physics must be one of {', '.join(PHYSICS)}, got {physics!r}")
 
 
-def model_xml(params: WristParams | str | None = None, physics: str = "plugin") -> str:
+def model_xml(params: WristParams | str | None = None, physics: str = "plugin", nested: bool = False) -> str:
     """The MJCF text of the wrist. ``physics``: "plugin" (springs and motors as MuJoCo plugins: the text is a
     self-contained model for any program that loads the plugin library), "callbacks" (the fallback's fields;
-    ``build_model`` fills in their runtime addresses) or "bare" (no springs, frozen setpoints)."""
+    ``build_model`` fills in their runtime addresses) or "bare" (no springs, frozen setpoints).
+    ``nested``: the rotors and legs are children of the static ``base`` rather than of the world, so that the
+    whole wrist is one subtree to attach to another model; the physics is the same."""
     _check_physics(physics)
     p = load_params(params)
     kin = WristKinematics(p)
@@ -212,6 +214,8 @@ def model_xml(params: WristParams | str | None = None, physics: str = "plugin") 
     cameras = "\n    ".join(
         f'<camera name="{n}" pos="{_fmt(pos)}" xyaxes="{_camera_axes(pos, target, (0, 1, 0) if n == "top" else (0, 0, 1))}"'
         f' fovy="45"/>' for n, pos in cams.items())
+    parts = "".join(rotors) + "".join(legs)
+    body_tail = (parts.replace("\n", "\n  ") + "\n    </body>") if nested else "\n    </body>" + parts
     if physics == "callbacks":
         spring_data = _fmt([p.spring.K, p.spring.delta0] + [-1.0] * (SPRING_FIELDS - 2))
         fields = f"""
@@ -272,8 +276,7 @@ def model_xml(params: WristParams | str | None = None, physics: str = "plugin") 
     <body name="base">
       <site name="base_site" pos="0 0 0" size="0.004"/>
       <geom name="forearm" type="cylinder" fromto="-0.13 0 0 -0.04 0 0" size="0.035" rgba="0.3 0.3 0.33 1"/>
-      <geom name="forearm_cap" type="cylinder" fromto="-0.04 0 0 -0.036 0 0" size="0.03" rgba="0.45 0.45 0.48 1"/>
-    </body>{''.join(rotors)}{''.join(legs)}
+      <geom name="forearm_cap" type="cylinder" fromto="-0.04 0 0 -0.036 0 0" size="0.03" rgba="0.45 0.45 0.48 1"/>{body_tail}
   </worldbody>
   <tendon>{''.join(tendons)}
   </tendon>
@@ -365,14 +368,25 @@ def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | Non
 
 
 def export_xml(params: WristParams | str | None = None) -> str:
-    """A self-contained MJCF of the wrist for other MuJoCo programs: ``model_xml(physics="plugin")`` with the
-    ``home`` keyframe (motors at the home posture, no preload) that ``build_model`` adds. Loads wherever the
+    """A self-contained MJCF of the wrist for other MuJoCo programs: ``model_xml(physics="plugin",
+    nested=True)`` (the whole wrist is the subtree of ``base``, to attach elsewhere) with two keyframes at the
+    home posture, at rest: ``home`` (no preload, as ``build_model``'s) and ``home_stiff`` (the largest internal
+    preload the motor torque and deflection limits allow there, the stiffest wrist). Loads wherever the
     plugin library is loaded (``native.load_plugin()``, ``mujoco.mj_loadPluginLibrary``)."""
+    from ..stiffness import lambda_range, motor_references
+
     p = load_params(params)
-    theta = _fmt(home_motor_angles(p))
+    u = np.zeros(2)
+    theta = home_motor_angles(p)
+    theta_stiff = np.append(motor_references(u, lambda_range(u, p)[1], p), 0.0)
+    layout = mujoco.MjModel.from_xml_string(model_xml(p, "bare", nested=True))  # qpos addresses only
+    qpos = layout.qpos0.copy()
+    for name, angle in zip(LEG_NAMES, theta_stiff):
+        qpos[layout.jnt_qposadr[mujoco.mj_name2id(layout, mujoco.mjtObj.mjOBJ_JOINT, f"motor_{name}")]] = angle
     key = f"""  <keyframe>
-    <key name="home" ctrl="{theta}" act="{theta}"/>
+    <key name="home" ctrl="{_fmt(theta)}" act="{_fmt(theta)}"/>
+    <key name="home_stiff" qpos="{_fmt(qpos)}" ctrl="{_fmt(theta_stiff)}" act="{_fmt(theta_stiff)}"/>
   </keyframe>
 </mujoco>
 """
-    return model_xml(p, "plugin").rstrip().removesuffix("</mujoco>") + key
+    return model_xml(p, "plugin", nested=True).rstrip().removesuffix("</mujoco>") + key

@@ -431,7 +431,9 @@ def plugin_library() -> Path | None:
 def mujoco_entry_point() -> None:
     """``mujoco.plugins`` entry point: ``import mujoco`` calls it (for example in ``python -m mujoco.viewer``)
     when vswrist-gym is installed, so exported wrists open there. Quiet where no compiler is available:
-    loading such a model then fails with MuJoCo's 'unknown plugin' error."""
+    loading such a model then fails with MuJoCo's 'plugin not found' error; ``VSWRIST_NATIVE=0`` skips it."""
+    if os.environ.get("VSWRIST_NATIVE", "1") == "0":
+        return
     with contextlib.suppress(OSError, RuntimeError):
         load_plugin()
 
