@@ -111,8 +111,8 @@ def model_xml(params: WristParams | str | None = None, physics: str = "plugin", 
 
     plugin = physics == "plugin"
 
-    def ref(instance: str) -> str:  # a body's reference to a plugin instance
-        return f'\n      <plugin instance="{instance}"/>' if plugin else ""
+    def ref(instance: str, indent: int = 6) -> str:  # a body's reference to a plugin instance
+        return f'\n{" " * indent}<plugin instance="{instance}"/>' if plugin else ""
 
     legs = []
     rotors = []
@@ -125,14 +125,13 @@ def model_xml(params: WristParams | str | None = None, physics: str = "plugin", 
         r1 = LINK_RADIUS_1
         if k == 0:
             end_name = "coupler"
-            end_inner = f"""
-{ref("closure")}
+            end_inner = f"""{ref("closure", 12)}
             <site name="coupler_site" pos="0 0 0" size="0.004" rgba="1 1 1 1"/>
             <geom name="coupler_ring" type="cylinder" fromto="-0.004 0 0 0.004 0 0" size="0.026" rgba="0.75 0.75 0.78 1"/>
             <body name="ps" pos="0 0 0">
               <joint name="ps" type="hinge" axis="1 0 0" damping="{p.damping.ps_joint:.17g}"
                      armature="{mot.rotor_inertia * ps_scale:.17g}"/>
-              <inertial pos="0.02 0 0" mass="{inr.ps_mass:.17g}" diaginertia="{_fmt([inr.ps_inertia] * 3)}"/>{ref("drive_ps")}
+              <inertial pos="0.02 0 0" mass="{inr.ps_mass:.17g}" diaginertia="{_fmt([inr.ps_inertia] * 3)}"/>{ref("drive_ps", 14)}
               <geom name="ps_flange" type="cylinder" fromto="0.004 0 0 0.03 0 0" size="0.018" rgba="0.6 0.6 0.62 1"/>
               <geom name="ps_shaft" type="capsule" fromto="0.03 0 0 {inr.hand_offset - 0.02:.17g} 0 0" size="0.008"
                     rgba="0.6 0.6 0.62 1"/>

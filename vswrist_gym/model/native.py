@@ -38,8 +38,6 @@ import numpy as np
 
 from .builder import CLOSURE_FIELDS, CLOSURE_PLUGIN, CLOSURE_TAG, DRIVE_PLUGIN, MOTOR_TAG, SPRING_FIELDS, SPRING_TAG
 
-PLUGIN_VERSION = 1  # bump with any change of the plugins' configuration or behaviour
-
 PLUGIN_SOURCE = r"""
 /* The VS-Wrist's springs and motor setpoint dynamics as MuJoCo engine plugins.
 
@@ -310,8 +308,6 @@ static void closure_compute(const mjModel* m, mjData* d, int instance, int capab
   peak[0] = worst;
 }
 
-int vswrist_plugin_version(void) { return @VERSION@; }
-
 mjPLUGIN_LIB_INIT(vswrist_plugins) {
   mjpPlugin drive;
   mjp_defaultPlugin(&drive);
@@ -340,8 +336,7 @@ mjPLUGIN_LIB_INIT(vswrist_plugins) {
   closure.compute = closure_compute;
   mjp_registerPlugin(&closure);
 }
-""".replace("@DRIVE@", DRIVE_PLUGIN).replace("@CLOSURE@", CLOSURE_PLUGIN).replace(
-    "@VERSION@", str(PLUGIN_VERSION))
+""".replace("@DRIVE@", DRIVE_PLUGIN).replace("@CLOSURE@", CLOSURE_PLUGIN)
 
 _plugin_path: Path | None = None  # the plugin library loaded into this process, if any
 _backend: str | None = None
