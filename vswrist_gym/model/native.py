@@ -245,6 +245,12 @@ static void drive_act_dot(const mjModel* m, mjData* d, int instance) {
 }
 
 /* ------------------------------------------------------------------------------- vswrist.closure */
+#define VSWRIST_MAX_WELDS 16
+
+typedef struct {
+  int body, nend, end[VSWRIST_MAX_WELDS];  /* the referencing body and the bodies welded to it */
+} Closure;
+
 static int closure_body(const mjModel* m, int instance) {
   for (int b = 0; b < m->nbody; b++) {
     if (m->body_plugin[b] == instance) return b;
@@ -264,17 +270,46 @@ static int closure_nstate(const mjModel* m, int instance) {
 
 /* the equality constraints are not in the model yet when the compiler asks for nstate */
 static int closure_init(const mjModel* m, mjData* d, int instance) {
-  const int c = closure_body(m, instance);
-  int welds = 0;
-  for (int e = 0; c >= 0 && e < m->neq; e++) {
-    welds += m->eq_type[e] == mjEQ_WELD && m->eq_objtype[e] == mjOBJ_BODY &&
-             (m->eq_obj1id[e] == c || m->eq_obj2id[e] == c);
+  Closure* s = (Closure*)malloc(sizeof(Closure));
+  if (!s) return -1;
+  s->body = closure_body(m, instance);
+  s->nend = 0;
+  for (int e = 0; s->body >= 0 && e < m->neq; e++) {
+    if (m->eq_type[e] != mjEQ_WELD || m->eq_objtype[e] != mjOBJ_BODY) continue;
+    const int other = m->eq_obj1id[e] == s->body ? m->eq_obj2id[e] :
+                      (m->eq_obj2id[e] == s->body ? m->eq_obj1id[e] : -1);
+    if (other < 0) continue;
+    if (s->nend == VSWRIST_MAX_WELDS) {
+      free(s);
+      mju_error("vswrist.closure instance '%s': more than %d welds on its body", instance_name(m, instance),
+                VSWRIST_MAX_WELDS);
+    }
+    s->end[s->nend++] = other;
   }
-  if (!welds) {
+  if (!s->nend) {
+    free(s);
     mju_error("vswrist.closure instance '%s': no weld joins the body that references it to another body",
               instance_name(m, instance));
   }
+  d->plugin_data[instance] = (uintptr_t)s;
   return 0;
+}
+
+static void closure_destroy(mjData* d, int instance) {
+  free((void*)d->plugin_data[instance]);
+  d->plugin_data[instance] = 0;
+}
+
+static void closure_copy(mjData* dest, const mjModel* m, const mjData* src, int instance) {
+  const Closure* from = (const Closure*)src->plugin_data[instance];
+  Closure* to = (Closure*)dest->plugin_data[instance];
+  if (!from || to == from) return;
+  if (!to) {
+    to = (Closure*)malloc(sizeof(Closure));
+    if (!to) mju_error("vswrist.closure: out of memory copying mjData");
+    dest->plugin_data[instance] = (uintptr_t)to;
+  }
+  memcpy(to, from, sizeof(Closure));
 }
 
 static void closure_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance) {
@@ -285,16 +320,14 @@ static void closure_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_d
    state at the start of each of them, for a few dozen flops each. */
 static void closure_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
   if (!(capability_bit & mjPLUGIN_PASSIVE)) return;
-  const int c = closure_body(m, instance);
-  if (c < 0) return;
+  const Closure* s = (const Closure*)d->plugin_data[instance];
+  if (!s) return;
   mjtNum* peak = d->plugin_state + m->plugin_stateadr[instance];
-  const mjtNum* pc = d->xpos + 3 * c;
-  const mjtNum* qc = d->xquat + 4 * c;
+  const mjtNum* pc = d->xpos + 3 * s->body;
+  const mjtNum* qc = d->xquat + 4 * s->body;
   mjtNum worst = peak[0];
-  for (int k = 0; k < m->neq; k++) {
-    if (m->eq_type[k] != mjEQ_WELD || m->eq_objtype[k] != mjOBJ_BODY) continue;
-    const int e = m->eq_obj1id[k] == c ? m->eq_obj2id[k] : (m->eq_obj2id[k] == c ? m->eq_obj1id[k] : -1);
-    if (e < 0) continue;
+  for (int k = 0; k < s->nend; k++) {
+    const int e = s->end[k];
     const mjtNum* pe = d->xpos + 3 * e;
     const mjtNum* qe = d->xquat + 4 * e;
     const mjtNum dx = pe[0] - pc[0], dy = pe[1] - pc[1], dz = pe[2] - pc[2];
@@ -332,6 +365,8 @@ mjPLUGIN_LIB_INIT(vswrist_plugins) {
   closure.attributes = 0;
   closure.nstate = closure_nstate;
   closure.init = closure_init;
+  closure.destroy = closure_destroy;
+  closure.copy = closure_copy;
   closure.reset = closure_reset;
   closure.compute = closure_compute;
   mjp_registerPlugin(&closure);
