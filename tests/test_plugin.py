@@ -9,6 +9,7 @@ import importlib.util
 import math
 import os
 import re
+import shutil
 import subprocess
 import sys
 import threading
@@ -163,6 +164,19 @@ def _run(code: str, env_extra: dict[str, str], cwd: Path) -> subprocess.Complete
                           timeout=120)
 
 
+def _entry_point_site(tmp_path) -> Path:
+    """A directory that, on sys.path, declares pyproject.toml's ``mujoco.plugins`` entry point the way an
+    installed vswrist-gym does (the shared test environment may not be reinstalled)."""
+    site = tmp_path / "site"
+    dist = site / "vswrist_ep_probe-0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: vswrist-ep-probe\nVersion: 0\n")
+    entry = re.search(r'\[project\.entry-points\."mujoco\.plugins"\]\n(\w+ = "[\w.:]+")',
+                      (ROOT / "pyproject.toml").read_text()).group(1)
+    (dist / "entry_points.txt").write_text("[mujoco.plugins]\n" + entry.replace('"', "") + "\n")
+    return site
+
+
 def test_exported_file_without_the_plugin_library_fails_clearly(tmp_path):
     _, path = _exported(tmp_path, "paper")
     # VSWRIST_NATIVE=0 also keeps vswrist-gym's mujoco.plugins entry point from loading the library
@@ -181,15 +195,29 @@ def test_plugin_library_loads_in_a_plain_process_and_through_the_entry_point(tmp
     res = _run(f"import mujoco; mujoco.mj_loadPluginLibrary({str(library)!r}); " + probe.split("; ", 1)[1],
                {"VSWRIST_NATIVE": "0"}, tmp_path)
     assert res.returncode == 0 and res.stdout.split() == ["5", "False"], res.stderr
-    site = tmp_path / "site"
-    dist = site / "vswrist_ep_probe-0.dist-info"
-    dist.mkdir(parents=True)
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: vswrist-ep-probe\nVersion: 0\n")
-    entry = re.search(r'\[project\.entry-points\."mujoco\.plugins"\]\n(\w+ = "[\w.:]+")',
-                      (ROOT / "pyproject.toml").read_text()).group(1)
-    (dist / "entry_points.txt").write_text("[mujoco.plugins]\n" + entry.replace('"', "") + "\n")
+    site = _entry_point_site(tmp_path)
     res = _run(probe, {"PYTHONPATH": os.pathsep.join([str(site), str(ROOT)])}, tmp_path)
     assert res.returncode == 0 and res.stdout.split() == ["5", "True"], res.stderr
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="needs xvfb-run for a display")
+def test_mujoco_viewer_opens_the_exported_file_with_only_import_mujoco(tmp_path):
+    """MuJoCo's own viewer, in a process that imports nothing of vswrist_gym itself: the entry point loads the
+    plugin, the file loads, and the passive viewer draws 50 frames of it stepping (under Xvfb)."""
+    _, path = _exported(tmp_path, "paper_knm")
+    site = _entry_point_site(tmp_path)
+    code = (f"import mujoco, mujoco.viewer; m = mujoco.MjModel.from_xml_path({str(path)!r}); d = mujoco.MjData(m)\n"
+            "with mujoco.viewer.launch_passive(m, d) as v:\n"
+            "    for _ in range(50):\n"
+            "        mujoco.mj_step(m, d, 20); v.sync()\n"
+            # os._exit: MuJoCo's GL teardown at interpreter exit can crash under Xvfb, with or without the
+            # plugin (the same file with its plugins stripped does too); the frames are what is tested
+            "print('frames drawn', m.nplugin, flush=True); import os; os._exit(0)\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM", "DISPLAY")}
+    env["PYTHONPATH"] = os.pathsep.join([str(site), str(ROOT)])
+    res = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1920x1080x24", sys.executable, "-c", code],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=180)
+    assert res.returncode == 0 and "frames drawn 5" in res.stdout, res.stderr[-2000:]
 
 
 def test_mounted_on_an_arm_the_springs_hold_the_hand(tmp_path):
