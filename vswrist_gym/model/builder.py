@@ -47,14 +47,13 @@ import numpy as np
 
 from ..kinematics import LEG_NAMES, WristKinematics, rot_x, rot_z
 from ..params import WristParams, load_params
+from .plugin_lib import CLOSURE_PLUGIN, DRIVE_PLUGIN
 
 SPRING_TAG = "vswrist_spring"
 MOTOR_TAG = "vswrist_motor"
 SPRING_FIELDS = 14
 CLOSURE_TAG = "vswrist_closure"
 CLOSURE_FIELDS = 4
-DRIVE_PLUGIN = "vswrist.drive"  # MuJoCo plugin names, registered by the library ``native`` compiles
-CLOSURE_PLUGIN = "vswrist.closure"
 PHYSICS = ("plugin", "callbacks", "bare")
 LEG_COLORS = ("0.85 0.3 0.25 1", "0.3 0.7 0.35 1", "0.25 0.45 0.85 1")
 LINK_RADIUS_1 = 0.03  # m, radius at which the first link bracket is drawn (visual only)
