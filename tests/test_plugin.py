@@ -301,3 +301,10 @@ def test_bad_plugin_configuration_is_named_by_the_compiler():
     xml = export_xml("paper").replace('<plugin instance="drive_ps"/>', "", 1)
     with pytest.raises(ValueError, match=r"drive_ps.*no body references it"):
         mujoco.MjModel.from_xml_string(xml)
+    xml = re.sub(r'(<instance name="drive_A">.*?)<config key="time_constant".*?(</instance>)', r"\1\2",
+                 export_xml("paper"), count=1, flags=re.S)
+    with pytest.raises(ValueError, match=r"drive_A.*actuator 'motor_A' has dyntype=\"user\""):
+        mujoco.MjModel.from_xml_string(xml)
+    xml = re.sub(r"<equality>.*?</equality>", "", export_xml("paper"), flags=re.S)
+    with pytest.raises(ValueError, match=r"instance 'closure': no weld"):
+        mujoco.MjModel.from_xml_string(xml)

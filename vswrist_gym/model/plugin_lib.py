@@ -40,8 +40,9 @@ PLUGIN_SOURCE = r"""
 
    All mutable state lives in the mjData (plugin_data: the resolved addresses; plugin_state: the closure
    peak); nothing is global, so separate mjData can step on separate threads. Configuration errors are
-   reported by the model compiler (nstate runs there) or, for the actuators, which the
-   compiler adds after the plugins, when an mjData is made. */
+   reported by the model compiler, naming the instance: in nstate, and for the actuators and welds
+   (not in the model yet when the compiler asks for nstate) in init, which runs whenever an mjData is made,
+   the compiler's own included. */
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
