@@ -308,3 +308,22 @@ def test_bad_plugin_configuration_is_named_by_the_compiler():
     xml = re.sub(r"<equality>.*?</equality>", "", export_xml("paper"), flags=re.S)
     with pytest.raises(ValueError, match=r"instance 'closure': no weld"):
         mujoco.MjModel.from_xml_string(xml)
+
+
+def test_compiled_path_leaves_no_global_callback():
+    """The fallback installs MuJoCo's process-global callbacks; a simulator on the compiled path removes them,
+    and its springs still act (they are in the model)."""
+    WristSim("paper_knm", backend="python")
+    assert mujoco.get_mjcb_passive() is not None and mujoco.get_mjcb_act_dyn() is not None
+    sim = WristSim("paper_knm")
+    assert sim.backend == "c" and native.backend() == "c"
+    assert mujoco.get_mjcb_passive() is None and mujoco.get_mjcb_act_dyn() is None
+    sim.reset(lam=0.5 * lambda_range(np.zeros(2), sim.params)[1])
+    sim.step(0.02)
+    tau = -2.0 * sim.params.spring.K * np.sinh(sim.deflections() / sim.params.spring.delta0)
+    q1 = sim.model.jnt_dofadr[[mujoco.mj_name2id(sim.model, _JOINT, f"leg{n}_q1") for n in LEG_NAMES]]
+    mujoco.mj_forward(sim.model, sim.data)
+    # the spring is the only passive force on q1 besides the joint damping
+    damping = sim.model.dof_damping[q1] * sim.data.qvel[q1]
+    np.testing.assert_allclose(sim.data.qfrc_passive[q1], tau - damping, rtol=1e-12, atol=1e-15)
+    assert np.abs(tau).min() > 0.1
