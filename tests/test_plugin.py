@@ -43,8 +43,8 @@ def _exported(tmp_path, params) -> tuple[mujoco.MjModel, Path]:
 
 
 def _name_map(src: mujoco.MjModel, dst: mujoco.MjModel):
-    """(qpos, dof, act, ctrl) index arrays: entry i of ``src`` is entry map[i] of ``dst``, joint and actuator
-    matched by name (the exported tree nests the legs under ``base``; WristSim's does not)."""
+    """((qpos src, qpos dst), (dof src, dof dst), actuator dst): index arrays pairing ``src``'s entries with
+    ``dst``'s, joints and actuators matched by name (the exported tree nests the legs under ``base``)."""
     q_src, q_dst, v_src, v_dst = [], [], [], []
     for j in range(src.njnt):
         k = mujoco.mj_name2id(dst, _JOINT, mujoco.mj_id2name(src, _JOINT, j))
