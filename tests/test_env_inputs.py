@@ -242,8 +242,7 @@ def test_python_fallback_monitor_matches_the_compiled_one():
 
     peaks = []
     for backend in ("c", "python"):
-        sim = WristSim("paper_knm")
-        native.install(backend)
+        sim = WristSim("paper_knm", backend=backend)
         try:
             sim.reset(u=(0.2, 0.3), lam=8.0)
             sim.set_motor_references(sim.motor_angles() + [0.3, -0.2, 0.1, 0.5])

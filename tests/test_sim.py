@@ -365,9 +365,9 @@ def test_python_fallback_callbacks_match_the_compiled_ones():
 
     runs = []
     for backend in ("c", "python"):
-        sim = WristSim()
-        native.install(backend)
+        sim = WristSim(backend=backend)
         try:
+            assert sim.model.nplugin == (5 if backend == "c" else 0)  # each really runs its own path
             sim.reset(u=(0.2, 0.3), lam=2.0)
             sim.set_motor_references(sim.motor_angles() + [0.2, -0.1, 0.3, 0.5])
             sim.step(0.1)
@@ -392,14 +392,14 @@ def test_divergence_raises_instead_of_silently_resetting(tmp_path, monkeypatch):
 
 def test_bench_sim_command_prints_the_overhead_ratio():
     """``vswrist bench-sim`` as a user runs it (small budget): one line per path, with the ratio to bare mj_step
-    near 1 for the compiled callbacks (the springs and motors add little to a substep) and well above it for
+    near 1 for the compiled plugin (the springs and motors add little to a substep) and well above it for
     the pure-Python loop."""
     # 2 s x 3 rounds (a few seconds of wall time): the best of rounds and the median of ~300 paired windows stay
     # put when other processes take the CPU for a while, where one 0.2 s round could be swamped
     out = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "bench-sim", "--params", "paper",
                           "--seconds", "2", "--rounds", "3"], capture_output=True, text=True, timeout=300,
                          check=True).stdout
-    ratios = dict(re.findall(r"^\s+(full, C callbacks \(default\)|Python loop, mj_step per substep)\s.*?ratio "
+    ratios = dict(re.findall(r"^\s+(full, C plugin \(default\)|Python loop, mj_step per substep)\s.*?ratio "
                              r"([0-9.]+)", out, flags=re.M))
-    assert set(ratios) == {"full, C callbacks (default)", "Python loop, mj_step per substep"}, out
-    assert 0.8 < float(ratios["full, C callbacks (default)"]) < float(ratios["Python loop, mj_step per substep"])
+    assert set(ratios) == {"full, C plugin (default)", "Python loop, mj_step per substep"}, out
+    assert 0.8 < float(ratios["full, C plugin (default)"]) < float(ratios["Python loop, mj_step per substep"])

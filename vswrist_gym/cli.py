@@ -20,6 +20,7 @@ COMMANDS = {
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
     "aggregate": ("vswrist_gym.agents.aggregate:main", "scores across tasks: IQM, probability of improvement"),
+    "export": ("vswrist_gym.model.export:main", "write the wrist as a self-contained MJCF (MuJoCo plugin)"),
 }
 
 

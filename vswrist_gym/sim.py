@@ -16,8 +16,9 @@ Quick reference (angles rad, torques N m, forces N, base frame = MuJoCo world fr
     sim.loop_closure_peak() -> float             # the same, worst over the last step's substeps
     s = sim.get_state(); sim.set_state(s)        # exact restart
 
-The springs and the motors' setpoint dynamics act inside every physics substep (``model.native`` callbacks),
-so ``step`` is one ``mj_step(m, d, n)`` call. Quantities derived from positions (body poses, sensors, actuator
+The springs and the motors' setpoint dynamics act inside every physics substep (``model.native``: MuJoCo
+plugins named in the model, or the fallback callbacks without a C compiler), so ``step`` is one
+``mj_step(m, d, n)`` call. Quantities derived from positions (body poses, sensors, actuator
 forces) are recomputed lazily with one ``mj_forward`` the first time an accessor needs them after ``step``;
 sensors are evaluated only then (they are disabled inside the substeps to save time). ``sync_kinematics()``
 updates only poses and velocities (for callers that read no sensors); ``posture()`` then reads those.
@@ -52,14 +53,18 @@ class WristSim:
     """MuJoCo simulation of one VS-Wrist built from one parameter set.
 
     ``scene_fn(spec)`` may add task bodies and geoms (world or the ``tool`` body) before compilation.
+    ``backend``: "c" (the compiled plugin), "python" (the fallback callbacks) or None (the plugin where a C
+    compiler is available; ``VSWRIST_NATIVE=0`` forces the fallback).
     """
 
-    def __init__(self, params: WristParams | str | None = None, scene_fn: SceneFn | None = None):
+    def __init__(self, params: WristParams | str | None = None, scene_fn: SceneFn | None = None,
+                 backend: str | None = None):
         self.params = load_params(params)
         self.kin = WristKinematics(self.params)
-        self.backend = native.install()
+        self.backend = native.install(backend or "auto")
+        self._callbacks = self.backend == "python"
         with native.compiling():
-            self.model = build_model(self.params, scene_fn)
+            self.model = build_model(self.params, scene_fn, native.physics(self.backend))
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.timestep = float(m.opt.timestep)
@@ -104,10 +109,15 @@ class WristSim:
         self._tool_R = d.site_xmat[self._tool_site].reshape(3, 3)
         self._tool_f = d.sensordata[self._force_adr:self._force_adr + 3]
         self._tool_t = d.sensordata[self._torque_adr:self._torque_adr + 3]
-        # the native spring callback keeps the worst weld violation it sees in userdata[slot] (builder's
-        # ``vswrist_closure`` field): one check per substep inside mj_step, with no Python in the loop
-        slot = int(m.numeric(CLOSURE_TAG).data[0])
-        self._closure_peak = d.userdata[slot:slot + 1]
+        # the closure monitor keeps the worst weld violation it sees in the ``closure`` plugin instance's state
+        # (the fallback: userdata[slot] of builder's ``vswrist_closure`` field): one check per substep inside
+        # mj_step, with no Python in the loop
+        if self._callbacks:
+            slot = int(m.numeric(CLOSURE_TAG).data[0])
+            self._closure_peak = d.userdata[slot:slot + 1]
+        else:
+            adr = int(m.plugin_stateadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_PLUGIN, "closure")])
+            self._closure_peak = d.plugin_state[adr:adr + 1]
         self._stale = True   # nothing derived from the positions is current (after step)
         self._light = False  # only poses and velocities are current (after sync_kinematics)
         self.reset()
@@ -192,6 +202,8 @@ class WristSim:
                              f"{self.timestep} s")
         if restart_peak:
             self._closure_peak[0] = 0.0
+        if self._callbacks:  # another WristSim may have switched the process to the plugin since
+            native.ensure_callbacks()
         mujoco.mj_step(self.model, self.data, n)
         self._stale = True
         w = self._warn_number
@@ -202,6 +214,8 @@ class WristSim:
     # -------------------------------------------------------------- measures
     def _forward(self) -> None:
         m = self.model
+        if self._callbacks:
+            native.ensure_callbacks()
         m.opt.disableflags &= ~_SENSOR_FLAG
         mujoco.mj_forward(m, self.data)
         m.opt.disableflags |= _SENSOR_FLAG
@@ -317,13 +331,13 @@ class WristSim:
     def loop_closure_peak(self) -> float:
         """``loop_closure_error`` at its worst over the last ``step``: at the state it started from and after
         each of its substeps (the last one included), m or rad. The peaks of reference jumps last a few
-        substeps, so the state at the end of a control period alone misses them. Needs the native callbacks
-        (``WristSim.backend``), which evaluate it once per substep."""
+        substeps, so the state at the end of a control period alone misses them. The closure plugin (or the
+        fallback callback) evaluates it once per substep."""
         if self._stale:
-            self._forward()  # the callbacks run in mj_forward too, so the final state is now counted
+            self._forward()  # the monitor runs in mj_forward too, so the final state is now counted
             return float(self._closure_peak[0])
         peak = float(self._closure_peak[0])
-        if self._light:  # poses are current but no callback saw the final state
+        if self._light:  # poses are current but the monitor did not see the final state
             end = weld_violation(self.data.xpos, self.data.xquat, self.coupler_id, self._end_ids)
             return end if end > peak else peak
         return peak

@@ -1,5 +1,5 @@
 """The MuJoCo model of the VS-Wrist, generated from a parameter set (see ``builder``)."""
 
-from .builder import build_model, build_spec, model_xml
+from .builder import build_model, build_spec, export_xml, model_xml
 
-__all__ = ["build_model", "build_spec", "model_xml"]
+__all__ = ["build_model", "build_spec", "export_xml", "model_xml"]

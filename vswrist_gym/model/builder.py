@@ -5,7 +5,7 @@ Structure (every element named; base frame = world frame, X along the forearm):
 * ``base``: the forearm housing (static).
 * ``motor_A/B/C``: one rotor hinge per leg, coaxial with the leg's first joint, carrying the motor's reflected
   inertia (joint armature). Its angle is the paper's theta. The motors act on the legs **only** through the
-  sinh springs (applied by ``vswrist_gym.model.native`` every substep: +tau on ``legX_q1``, -tau on ``motor_X``).
+  sinh springs (applied every substep by ``vswrist_gym.model.native``: +tau on ``legX_q1``, -tau on ``motor_X``).
 * ``legX_link1..3`` + ``legX_q1..q4``: the three legs, four hinges each, following the DH table exactly;
   joint values equal the DH angles (each joint's ``ref`` is its home angle, so ``qpos0`` is the home pose).
   The body after ``q4`` has the coupler frame. Leg A's is the ``coupler`` body; legs B and C end in
@@ -18,16 +18,23 @@ Structure (every element named; base frame = world frame, X along the forearm):
   first-order low-pass (time constant, speed limit) into the activation (the servo setpoint), held within
   ``kd vmax / kp`` of the motor angle, then a PD position loop ``kp (act - q) - kd qdot`` clamped to the torque
   limit: the loop never commands more than the speed limit and does not wind up when the torque saturates.
-  The setpoint dynamics are ``dyntype=user`` (native callback, ``dynprm`` = time constant, speed limit, lead).
+  The setpoint dynamics are ``dyntype=user``, computed by the ``vswrist.drive`` plugin (or the fallback callback).
 * Tendons ``deflection_A/B/C`` = q1 - theta with the mechanical deflection limit as a tendon limit: a damped
   bumper (time constant ``simulation.stop_timeconst``, MuJoCo's default impedance 0.9-0.95).
-* Custom numeric ``vswrist_spring`` = (K, delta0, q1 dof adr x3, motor dof adr x3, q1 qpos adr x3, motor qpos adr
-  x3) carries each model's own spring parameters to the process-global callbacks, which ignore any model
-  without it (e.g. Gymnasium's Ant in the same process). ``vswrist_motor`` tags the model for the motor
-  setpoint dynamics (time constant, speed limit and lead are each actuator's ``dynprm[0:3]``).
-  ``vswrist_closure`` = (userdata slot, coupler body id, legB_end id, legC_end id): the spring callback keeps
-  the largest weld violation it sees in ``userdata[slot]`` (one per substep, at no measurable cost), so
-  ``WristSim.loop_closure_peak`` has the worst over a whole ``mj_step(m, d, n)``.
+* Springs and setpoint dynamics, ``physics="plugin"`` (the default): MuJoCo engine plugins named in the
+  ``<extension>`` section, so the model is self-contained given the plugin library (``native.load_plugin``).
+  One ``vswrist.drive`` instance per motor (``drive_A/B/C``, ``drive_ps``) with its constants as config
+  (K, delta0, time_constant, speed_limit, lead; the PS motor has no spring), referenced by the rotor body and
+  the leg's first link (the spring joins their joints) or by ``ps``. One ``vswrist.closure`` instance,
+  referenced by ``coupler``: it keeps the largest violation of the coupler's welds it sees (one check per
+  substep, at no measurable cost) in its plugin state, so ``WristSim.loop_closure_peak`` has the worst over a
+  whole ``mj_step(m, d, n)``.
+* ``physics="callbacks"`` (the fallback without a C compiler): custom numeric ``vswrist_spring`` = (K, delta0,
+  q1 dof adr x3, motor dof adr x3, q1 qpos adr x3, motor qpos adr x3) carries the spring parameters to the
+  process-global Python callbacks, which ignore any model without it; ``vswrist_motor`` tags the model for the
+  setpoint dynamics (each actuator's ``dynprm[0:3]`` = time constant, speed limit, lead); ``vswrist_closure`` =
+  (userdata slot, coupler body id, legB_end id, legC_end id) for the closure monitor in ``userdata[slot]``.
+* ``physics="bare"``: neither (no springs, setpoints frozen): the reference for the speed benchmark.
 * Cameras ``front``, ``side``, ``top``; keyframe ``home``.
 """
 
@@ -40,12 +47,14 @@ import numpy as np
 
 from ..kinematics import LEG_NAMES, WristKinematics, rot_x, rot_z
 from ..params import WristParams, load_params
+from .plugin_lib import CLOSURE_PLUGIN, DRIVE_PLUGIN
 
 SPRING_TAG = "vswrist_spring"
 MOTOR_TAG = "vswrist_motor"
 SPRING_FIELDS = 14
 CLOSURE_TAG = "vswrist_closure"
 CLOSURE_FIELDS = 4
+PHYSICS = ("plugin", "callbacks", "bare")
 LEG_COLORS = ("0.85 0.3 0.25 1", "0.3 0.7 0.35 1", "0.25 0.45 0.85 1")
 LINK_RADIUS_1 = 0.03  # m, radius at which the first link bracket is drawn (visual only)
 OFFSCREEN_SIZE = (1280, 960)  # px, the offscreen buffer: the largest frame a Renderer of this model can draw
@@ -72,8 +81,18 @@ def _camera_axes(pos, target, up=(0.0, 0.0, 1.0)) -> str:
     return _fmt(np.concatenate([x, y]))
 
 
-def model_xml(params: WristParams | str | None = None) -> str:
-    """The MJCF text of the wrist (before the runtime-only fields are filled in by ``build_model``)."""
+def _check_physics(physics: str) -> None:
+    if physics not in PHYSICS:
+        raise ValueError(f"physics must be one of {', '.join(PHYSICS)}, got {physics!r}")
+
+
+def model_xml(params: WristParams | str | None = None, physics: str = "plugin", nested: bool = False) -> str:
+    """The MJCF text of the wrist. ``physics``: "plugin" (springs and motors as MuJoCo plugins: the text is a
+    self-contained model for any program that loads the plugin library), "callbacks" (the fallback's fields;
+    ``build_model`` fills in their runtime addresses) or "bare" (no springs, frozen setpoints).
+    ``nested``: the rotors and legs are children of the static ``base`` rather than of the world, so that the
+    whole wrist is one subtree to attach to another model; the physics is the same."""
+    _check_physics(physics)
     p = load_params(params)
     kin = WristKinematics(p)
     q_home = kin.joint_angles(np.zeros(2)).reshape(3, 4)
@@ -89,6 +108,11 @@ def model_xml(params: WristParams | str | None = None) -> str:
     m_end = inr.coupler_mass / 3.0
     i_end = inr.coupler_inertia / 3.0
 
+    plugin = physics == "plugin"
+
+    def ref(instance: str, indent: int = 6) -> str:  # a body's reference to a plugin instance
+        return f'\n{" " * indent}<plugin instance="{instance}"/>' if plugin else ""
+
     legs = []
     rotors = []
     for k, (name, eta) in enumerate(zip(LEG_NAMES, p.geometry.eta)):
@@ -100,13 +124,13 @@ def model_xml(params: WristParams | str | None = None) -> str:
         r1 = LINK_RADIUS_1
         if k == 0:
             end_name = "coupler"
-            end_inner = f"""
+            end_inner = f"""{ref("closure", 12)}
             <site name="coupler_site" pos="0 0 0" size="0.004" rgba="1 1 1 1"/>
             <geom name="coupler_ring" type="cylinder" fromto="-0.004 0 0 0.004 0 0" size="0.026" rgba="0.75 0.75 0.78 1"/>
             <body name="ps" pos="0 0 0">
               <joint name="ps" type="hinge" axis="1 0 0" damping="{p.damping.ps_joint:.17g}"
                      armature="{mot.rotor_inertia * ps_scale:.17g}"/>
-              <inertial pos="0.02 0 0" mass="{inr.ps_mass:.17g}" diaginertia="{_fmt([inr.ps_inertia] * 3)}"/>
+              <inertial pos="0.02 0 0" mass="{inr.ps_mass:.17g}" diaginertia="{_fmt([inr.ps_inertia] * 3)}"/>{ref("drive_ps", 14)}
               <geom name="ps_flange" type="cylinder" fromto="0.004 0 0 0.03 0 0" size="0.018" rgba="0.6 0.6 0.62 1"/>
               <geom name="ps_shaft" type="capsule" fromto="0.03 0 0 {inr.hand_offset - 0.02:.17g} 0 0" size="0.008"
                     rgba="0.6 0.6 0.62 1"/>
@@ -130,7 +154,7 @@ def model_xml(params: WristParams | str | None = None) -> str:
     <body name="leg{name}_link1" pos="0 0 0" quat="{_quat(rot_x(eta) @ rot_z(qh[0]))}">
       <joint name="leg{name}_q1" type="hinge" axis="0 0 1" ref="{qh[0]:.17g}"/>
       <inertial pos="0 {-r1 / 2:.17g} {r1 / 2:.17g}" mass="{lm[0]:.17g}" diaginertia="{_fmt([li[0]] * 3)}"/>
-      <geom name="leg{name}_link1" type="capsule" fromto="0 0 {r1:.17g} 0 {-r1:.17g} 0" size="0.004" rgba="{color}"/>
+      <geom name="leg{name}_link1" type="capsule" fromto="0 0 {r1:.17g} 0 {-r1:.17g} 0" size="0.004" rgba="{color}"/>{ref(f"drive_{name}")}
       <body name="leg{name}_link2" pos="0 0 0" quat="{_quat(rot_x(np.pi / 2) @ rot_z(qh[1]))}">
         <joint name="leg{name}_q2" type="hinge" axis="0 0 1" ref="{qh[1]:.17g}"/>
         <inertial pos="0 0 {(r1 + d) / 2:.17g}" mass="{lm[1]:.17g}" diaginertia="{_fmt([li[1]] * 3)}"/>
@@ -153,7 +177,7 @@ def model_xml(params: WristParams | str | None = None) -> str:
       <joint name="motor_{name}" type="hinge" axis="0 0 1" ref="{qh[0]:.17g}" armature="{mot.rotor_inertia:.17g}"/>
       <inertial pos="0 0 0" mass="0.01" diaginertia="1e-6 1e-6 1e-6"/>
       <geom name="motor_{name}_rotor" type="cylinder" fromto="0 0 -0.036 0 0 -0.028" size="0.012" rgba="{color}"/>
-      <geom name="motor_{name}_mark" type="box" pos="0.008 0 -0.037" size="0.006 0.002 0.0015" rgba="1 1 1 1"/>
+      <geom name="motor_{name}_mark" type="box" pos="0.008 0 -0.037" size="0.006 0.002 0.0015" rgba="1 1 1 1"/>{ref(f"drive_{name}")}
     </body>""")
 
     damping = p.damping.leg_joint
@@ -162,7 +186,9 @@ def model_xml(params: WristParams | str | None = None) -> str:
 
     def actuator(name: str, joint: str, limit: float, scale: float = 1.0) -> str:
         kp, kd = mot.kp * scale, mot.kd * scale
-        return (f'<general name="{name}" joint="{joint}" dyntype="user" dynprm="{tc:.17g} {vmax:.17g} {lead:.17g}" '
+        # the plugin reads the setpoint constants from its instance's config; the fallback from dynprm
+        dynprm = "" if plugin else f'dynprm="{tc:.17g} {vmax:.17g} {lead:.17g}" '
+        return (f'<general name="{name}" joint="{joint}" dyntype="user" {dynprm}'
                 f'gaintype="fixed" gainprm="{kp:.17g}" biastype="affine" '
                 f'biasprm="0 {-kp:.17g} {-kd:.17g}" forcelimited="true" '
                 f'forcerange="{-limit:.17g} {limit:.17g}"/>')
@@ -186,18 +212,44 @@ def model_xml(params: WristParams | str | None = None) -> str:
     cameras = "\n    ".join(
         f'<camera name="{n}" pos="{_fmt(pos)}" xyaxes="{_camera_axes(pos, target, (0, 1, 0) if n == "top" else (0, 0, 1))}"'
         f' fovy="45"/>' for n, pos in cams.items())
-    spring_data = _fmt([p.spring.K, p.spring.delta0] + [-1.0] * (SPRING_FIELDS - 2))
-
-    return f"""<mujoco model="vswrist_{p.name.replace('*', '_mod')}">
-  <compiler angle="radian" autolimits="true"/>
-  <option timestep="{sim.timestep:.17g}" integrator="implicitfast" gravity="{gravity}" solver="Newton"
-          iterations="{int(sim.solver_iterations)}" tolerance="{sim.solver_tolerance:.17g}" jacobian="dense"/>
+    parts = "".join(rotors) + "".join(legs)
+    body_tail = (parts.replace("\n", "\n  ") + "\n    </body>") if nested else "\n    </body>" + parts
+    if physics == "callbacks":
+        spring_data = _fmt([p.spring.K, p.spring.delta0] + [-1.0] * (SPRING_FIELDS - 2))
+        fields = f"""
   <size nuserdata="1"/>
   <custom>
     <numeric name="{SPRING_TAG}" data="{spring_data}"/>
     <numeric name="{CLOSURE_TAG}" data="{_fmt([-1.0] * CLOSURE_FIELDS)}"/>
     <numeric name="{MOTOR_TAG}" data="1"/>
-  </custom>
+  </custom>"""
+    elif plugin:
+        def config(**kv) -> str:
+            return "".join(f'\n        <config key="{k}" value="{v:.17g}"/>' for k, v in kv.items())
+
+        motor = dict(time_constant=tc, speed_limit=vmax, lead=lead)
+        drives = [f"""
+      <instance name="drive_{n}">{config(K=p.spring.K, delta0=p.spring.delta0, **motor)}
+      </instance>""" for n in LEG_NAMES]
+        drives.append(f"""
+      <instance name="drive_ps">{config(**motor)}
+      </instance>""")
+        fields = f"""
+  <extension>
+    <plugin plugin="{DRIVE_PLUGIN}">{''.join(drives)}
+    </plugin>
+    <plugin plugin="{CLOSURE_PLUGIN}">
+      <instance name="closure"/>
+    </plugin>
+  </extension>"""
+    else:
+        fields = ""
+
+    return f"""<mujoco model="vswrist_{p.name.replace('*', '_mod')}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{sim.timestep:.17g}" integrator="implicitfast" gravity="{gravity}" solver="Newton"
+          iterations="{int(sim.solver_iterations)}" tolerance="{sim.solver_tolerance:.17g}" jacobian="dense"/>
+{fields}
   <visual>
     <global offwidth="{OFFSCREEN_SIZE[0]}" offheight="{OFFSCREEN_SIZE[1]}"/>
     <headlight ambient="0.35 0.35 0.35" diffuse="0.6 0.6 0.6"/>
@@ -222,8 +274,7 @@ def model_xml(params: WristParams | str | None = None) -> str:
     <body name="base">
       <site name="base_site" pos="0 0 0" size="0.004"/>
       <geom name="forearm" type="cylinder" fromto="-0.13 0 0 -0.04 0 0" size="0.035" rgba="0.3 0.3 0.33 1"/>
-      <geom name="forearm_cap" type="cylinder" fromto="-0.04 0 0 -0.036 0 0" size="0.03" rgba="0.45 0.45 0.48 1"/>
-    </body>{''.join(rotors)}{''.join(legs)}
+      <geom name="forearm_cap" type="cylinder" fromto="-0.04 0 0 -0.036 0 0" size="0.03" rgba="0.45 0.45 0.48 1"/>{body_tail}
   </worldbody>
   <tendon>{''.join(tendons)}
   </tendon>
@@ -241,17 +292,32 @@ def model_xml(params: WristParams | str | None = None) -> str:
 """
 
 
-def build_spec(params: WristParams | str | None = None, scene_fn: SceneFn | None = None) -> mujoco.MjSpec:
-    """An editable MjSpec of the wrist; ``scene_fn(spec)`` may add task bodies/geoms (world or ``tool`` body)."""
+def _resolve_physics(physics: str | None) -> str:
+    """None: the plugin where it can be compiled, else the fallback callbacks (``native.install``). Makes
+    sure what the mode needs is loaded or installed."""
+    from . import native  # imported here: native imports this module's constants
+
+    if physics is None:
+        return native.physics(native.install())
+    _check_physics(physics)
+    if physics == "plugin":
+        native.load_plugin()
+    return physics
+
+
+def build_spec(params: WristParams | str | None = None, scene_fn: SceneFn | None = None,
+               physics: str | None = None) -> mujoco.MjSpec:
+    """An editable MjSpec of the wrist; ``scene_fn(spec)`` may add task bodies/geoms (world or ``tool`` body).
+    ``physics`` as ``model_xml``; None: the plugin where a C compiler is available, else the callbacks."""
     p = load_params(params)
-    spec = mujoco.MjSpec.from_string(model_xml(p))
+    spec = mujoco.MjSpec.from_string(model_xml(p, _resolve_physics(physics)))
     if scene_fn is not None:
         scene_fn(spec)
     return spec
 
 
 def _fill_runtime_fields(m: mujoco.MjModel, p: WristParams) -> None:
-    """Write the joint and body addresses the native callbacks need into the model's ``vswrist_spring`` and
+    """Write the joint and body addresses the fallback callbacks need into the model's ``vswrist_spring`` and
     ``vswrist_closure`` fields."""
     adr = m.numeric_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, SPRING_TAG)]
     ids_link = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"leg{n}_q1") for n in LEG_NAMES]
@@ -272,10 +338,13 @@ def home_motor_angles(params: WristParams | str | None = None) -> np.ndarray:
     return np.append(kin.joint_angles(np.zeros(2))[0::4], 0.0)
 
 
-def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | None = None) -> mujoco.MjModel:
-    """Compile the wrist (plus whatever ``scene_fn`` adds) with its ``home`` keyframe and callback fields."""
+def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | None = None,
+                physics: str | None = None) -> mujoco.MjModel:
+    """Compile the wrist (plus whatever ``scene_fn`` adds) with its ``home`` keyframe (and, for the fallback
+    callbacks, their runtime fields). ``physics`` as ``build_spec``."""
     p = load_params(params)
-    spec = build_spec(p, scene_fn)
+    physics = _resolve_physics(physics)
+    spec = build_spec(p, scene_fn, physics)
     theta = home_motor_angles(p)
     ctrl = np.zeros(len(spec.actuators))
     ctrl[:4] = theta
@@ -286,6 +355,36 @@ def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | Non
     key.name = "home"
     key.ctrl = ctrl
     key.act = act
-    m = spec.compile()
-    _fill_runtime_fields(m, p)
+    from . import native
+
+    with native.compiling():  # the fallback callbacks must not run inside the compiler
+        m = spec.compile()
+    if physics == "callbacks":
+        _fill_runtime_fields(m, p)
+        native.ensure_callbacks()
     return m
+
+
+def export_xml(params: WristParams | str | None = None) -> str:
+    """A self-contained MJCF of the wrist for other MuJoCo programs: ``model_xml(physics="plugin",
+    nested=True)`` (the whole wrist is the subtree of ``base``, to attach elsewhere) with two keyframes at the
+    home posture, at rest: ``home`` (no preload, as ``build_model``'s) and ``home_stiff`` (the largest internal
+    preload the motor torque and deflection limits allow there, the stiffest wrist). Loads wherever the
+    plugin library is loaded (``native.load_plugin()``, ``mujoco.mj_loadPluginLibrary``)."""
+    from ..stiffness import lambda_range, motor_references
+
+    p = load_params(params)
+    u = np.zeros(2)
+    theta = home_motor_angles(p)
+    theta_stiff = np.append(motor_references(u, lambda_range(u, p)[1], p), 0.0)
+    layout = mujoco.MjModel.from_xml_string(model_xml(p, "bare", nested=True))  # qpos addresses only
+    qpos = layout.qpos0.copy()
+    for name, angle in zip(LEG_NAMES, theta_stiff):
+        qpos[layout.jnt_qposadr[mujoco.mj_name2id(layout, mujoco.mjtObj.mjOBJ_JOINT, f"motor_{name}")]] = angle
+    key = f"""  <keyframe>
+    <key name="home" ctrl="{_fmt(theta)}" act="{_fmt(theta)}"/>
+    <key name="home_stiff" qpos="{_fmt(qpos)}" ctrl="{_fmt(theta_stiff)}" act="{_fmt(theta_stiff)}"/>
+  </keyframe>
+</mujoco>
+"""
+    return model_xml(p, "plugin", nested=True).rstrip().removesuffix("</mujoco>") + key

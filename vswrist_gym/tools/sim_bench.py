@@ -1,7 +1,8 @@
 """``vswrist bench-sim``: simulator speed, measured against a bare ``mj_step`` of the same model in the same run.
 
-Prints, per physics substep: the bare ``mj_step`` (no springs, no motor low-pass: the callbacks removed), the
-full substep (sinh springs + motor dynamics + ``mj_step``) on each implementation, and their ratio; the
+Prints, per physics substep: the bare ``mj_step`` (the same wrist without springs and motor low-pass:
+``physics="bare"``), the full substep (sinh springs + motor dynamics in the MuJoCo plugin, inside ``mj_step``;
+and the Python-callback fallback) and their ratio; the
 substeps per second and the real-time factor of the default path. ``--sweep`` adds the timestep trade-off:
 static-stiffness error against the analytic model, speed, and the loop-closure error under random references:
 worst, median and least over seeds, and how it scales with the step.
@@ -18,6 +19,7 @@ import mujoco
 import numpy as np
 
 from ..model import native
+from ..model.builder import build_model
 from ..params import DEVICE_PRESETS, PRESETS, load_params
 from ..sim import WristSim
 from ..stiffness import coupler_stiffness, lambda_range, motor_references
@@ -35,7 +37,7 @@ def _reference_schedule(sim: WristSim, n: int, seed: int = 0) -> np.ndarray:
 
 
 def _time_full(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: float) -> float:
-    """Wall seconds per substep of ``WristSim.step`` (springs + motors in the callbacks)."""
+    """Wall seconds per substep of ``WristSim.step`` (springs + motors in the plugin or the callbacks)."""
     sim.reset(lam=0.5 * lambda_range(np.zeros(2), sim.params)[1])
     n_ctrl = int(round(seconds / control_dt))
     per_ref = int(round(0.5 / control_dt))
@@ -49,35 +51,42 @@ def _time_full(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: floa
     return wall / (n_ctrl * int(round(control_dt / sim.timestep)))
 
 
+# the state both models share: everything but the plugin's (the bare model has none)
+_SHARED_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION) & ~int(mujoco.mjtState.mjSTATE_PLUGIN)
+
+
+def _bare(sim: WristSim) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """The same wrist without springs and setpoint dynamics (``physics="bare"``), with the sim's options."""
+    m = build_model(sim.params, physics="bare")
+    m.opt.disableflags = sim.model.opt.disableflags
+    return m, mujoco.MjData(m)
+
+
 def _time_paired(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: float
                  ) -> tuple[float, float, list[float]]:
     """Wall seconds per substep (full, bare), alternating window by window so that both see the same load
-    from other processes. Full: ``WristSim.step`` (springs + motors in the callbacks). Bare: ``mj_step`` of the
-    same model and data from the same state, callbacks removed; then the full run continues where it was."""
-    backend = native.backend()
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
-    m, d = sim.model, sim.data
+    from other processes. Full: ``WristSim.step`` (springs + motors in the plugin). Bare: ``mj_step`` of the
+    same wrist without them (``physics="bare"``: same bodies, joints, constraints and actuators), from the same
+    state at the start of each window."""
+    bm, bd = _bare(sim)
     sim.reset(lam=0.5 * lambda_range(np.zeros(2), sim.params)[1])
     nsub = int(round(control_dt / sim.timestep))
     n_ctrl = int(round(seconds / control_dt))
     per_ref = int(round(0.5 / control_dt))
+    state = np.empty(mujoco.mj_stateSize(bm, _SHARED_STATE))
     full = bare = 0.0
     ratios = []
     for k in range(n_ctrl):
         if k % per_ref == 0:
             sim.set_motor_references(refs[(k // per_ref) % len(refs)])
-        before = sim.get_state()
+        mujoco.mj_getState(sim.model, sim.data, state, _SHARED_STATE)
+        mujoco.mj_setState(bm, bd, state, _SHARED_STATE)
         t0 = time.perf_counter()
         sim.step(control_dt)
         t_full = time.perf_counter() - t0
-        after = sim.get_state()
-        native.uninstall()
-        mujoco.mj_setState(m, d, before, spec)
         t0 = time.perf_counter()
-        mujoco.mj_step(m, d, nsub)
+        mujoco.mj_step(bm, bd, nsub)
         t_bare = time.perf_counter() - t0
-        native.install(backend or "auto")
-        mujoco.mj_setState(m, d, after, spec)
         full += t_full
         bare += t_bare
         ratios.append(t_full / t_bare)
@@ -85,54 +94,57 @@ def _time_paired(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: fl
 
 
 def _time_python_loop(sim: WristSim, refs: np.ndarray, control_dt: float, seconds: float) -> float:
-    """The naive path: one ``mj_step`` per substep, NumPy springs into ``qfrc_applied`` (callbacks removed;
-    the motor low-pass then runs on MuJoCo's filter via ctrl, i.e. without the speed limit: cheaper, if anything)."""
-    backend = native.backend()
-    native.uninstall()
-    try:
-        sim.reset(lam=0.5 * lambda_range(np.zeros(2), sim.params)[1])
-        m, d = sim.model, sim.data
-        q1, mot = sim._qadr_q1, sim._qadr_motor[:3]
-        v1, vm = sim.model.jnt_dofadr[[sim.model.jnt_qposadr.tolist().index(a) for a in q1]], sim._vadr_motor[:3]
-        K2, inv_d0 = 2.0 * sim.params.spring.K, 1.0 / sim.params.spring.delta0
-        nsub = int(round(control_dt / sim.timestep))
-        n_ctrl = int(round(seconds / control_dt))
-        per_ref = int(round(0.5 / control_dt))
-        act = sim._act_adr
-        tc = sim.params.motor.time_constant
-        t0 = time.perf_counter()
-        for k in range(n_ctrl):
-            if k % per_ref == 0:
-                ref = refs[(k // per_ref) % len(refs)]
-            for _ in range(nsub):
-                tau = -K2 * np.sinh((d.qpos[q1] - d.qpos[mot]) * inv_d0)
-                d.qfrc_applied[v1] = tau
-                d.qfrc_applied[vm] = -tau
-                d.act[act] += (ref - d.act[act]) * (sim.timestep / tc)
-                mujoco.mj_step(m, d)
-        wall = time.perf_counter() - t0
-    finally:
-        native.install(backend or "auto")
+    """The naive path: one ``mj_step`` per substep of the bare wrist, NumPy springs into ``qfrc_applied`` (the
+    motor low-pass runs in NumPy too, without the speed limit: cheaper, if anything)."""
+    m, d = _bare(sim)
+    sim.reset(lam=0.5 * lambda_range(np.zeros(2), sim.params)[1])
+    state = np.empty(mujoco.mj_stateSize(m, _SHARED_STATE))
+    mujoco.mj_getState(sim.model, sim.data, state, _SHARED_STATE)
+    mujoco.mj_setState(m, d, state, _SHARED_STATE)
+    q1, mot = sim._qadr_q1, sim._qadr_motor[:3]
+    v1, vm = m.jnt_dofadr[[m.jnt_qposadr.tolist().index(a) for a in q1]], sim._vadr_motor[:3]
+    K2, inv_d0 = 2.0 * sim.params.spring.K, 1.0 / sim.params.spring.delta0
+    nsub = int(round(control_dt / sim.timestep))
+    n_ctrl = int(round(seconds / control_dt))
+    per_ref = int(round(0.5 / control_dt))
+    act = sim._act_adr
+    tc = sim.params.motor.time_constant
+    t0 = time.perf_counter()
+    for k in range(n_ctrl):
+        if k % per_ref == 0:
+            ref = refs[(k // per_ref) % len(refs)]
+        for _ in range(nsub):
+            tau = -K2 * np.sinh((d.qpos[q1] - d.qpos[mot]) * inv_d0)
+            d.qfrc_applied[v1] = tau
+            d.qfrc_applied[vm] = -tau
+            d.act[act] += (ref - d.act[act]) * (sim.timestep / tc)
+            mujoco.mj_step(m, d)
+    wall = time.perf_counter() - t0
     return wall / (n_ctrl * nsub)
 
 
 def speed(preset: str, seconds: float, rounds: int, control_dt: float, with_python: bool) -> dict:
-    sim = WristSim(preset)
+    sim = WristSim(preset, backend="c")
+    fallback = WristSim(preset, backend="python") if with_python else None
+    native.install("c")  # the fallback's callbacks stay out of the plugin's timings
     refs = _reference_schedule(sim, 64)
     res: dict[str, list[float]] = {"bare": [], "full_c": [], "ratio": [], "python_loop": [],
                                    "python_callbacks": []}
     for _ in range(rounds):  # interleaved, so that load from other processes hits all alike; best of rounds
-        native.install("c")
         full, bare, ratios = _time_paired(sim, refs, control_dt, seconds)
         res["full_c"].append(full)
         res["bare"].append(bare)
         res["ratio"] += ratios
-        if with_python:
+        if fallback is not None:
             res["python_loop"].append(_time_python_loop(sim, refs, control_dt / 5, seconds / 5))
-            native.install("python")
-            res["python_callbacks"].append(_time_full(sim, refs, control_dt, seconds / 5))
+            res["python_callbacks"].append(_time_full(fallback, refs, control_dt, seconds / 5))
             native.install("c")
+    # the Python paths' ratios: each round's time over the bare time of the same round (a burst of load
+    # from other processes then hits both), median over rounds; not the ratio of two bests of rounds
+    python_ratios = {k + "_ratio": float(np.median(np.array(res[k]) / np.array(res["bare"])))
+                     for k in ("python_loop", "python_callbacks") if res[k]}
     out = {k: min(v) for k, v in res.items() if v}
+    out.update(python_ratios)
     out["ratio"] = float(np.median(res["ratio"]))  # median over all paired control windows
     out["ratio_iqr"] = tuple(np.percentile(res["ratio"], [25, 75]))
     out["timestep"] = sim.timestep
@@ -250,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
         dt = r["timestep"]
         print(f"[{preset}] timestep {dt * 1e3:g} ms, step({args.control_dt:g} s) = {round(args.control_dt / dt)} substeps")
         print(f"  bare mj_step                         {r['bare'] * 1e6:8.2f} us   {1 / r['bare']:10.0f} substeps/s")
-        print(f"  full, C callbacks (default)          {r['full_c'] * 1e6:8.2f} us   {1 / r['full_c']:10.0f} substeps/s   "
+        print(f"  full, C plugin (default)             {r['full_c'] * 1e6:8.2f} us   {1 / r['full_c']:10.0f} substeps/s   "
               f"ratio {r['ratio']:.3f} (median of paired windows; quartiles {r['ratio_iqr'][0]:.3f}-"
               f"{r['ratio_iqr'][1]:.3f})")
         rows = [("full, Python callbacks (fallback)", "python_callbacks"),
@@ -258,10 +270,10 @@ def main(argv: list[str] | None = None) -> int:
         for label, key in rows:
             if key in r:
                 print(f"  {label:<36} {r[key] * 1e6:8.2f} us   {1 / r[key]:10.0f} substeps/s   "
-                      f"ratio {r[key] / r['bare']:.3f}")
+                      f"ratio {r[key + '_ratio']:.3f}")
         print(f"  real-time factor (default path)      {dt / r['full_c']:.0f}x\n")
     if args.solvers:
-        print("full substep (C callbacks) under other MuJoCo settings, same motion; best of rounds, "
+        print("full substep (C plugin) under other MuJoCo settings, same motion; best of rounds, "
               "ratio to the default settings measured alongside")
         for preset in presets:
             sim = WristSim(preset)
