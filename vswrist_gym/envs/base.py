@@ -476,12 +476,12 @@ class VSWristEnv(gym.Env):
         failure = None
         try:
             if self._latency > 0.0 and self._theta_prev is not None:
-                self.sim.step(self._latency)
+                self._advance(self._latency, True)
                 self.sim.set_motor_references(theta)
-                self.sim.step(self.ctrl_dt - self._latency, restart_peak=False)
+                self._advance(self.ctrl_dt - self._latency, False)
             else:
                 self.sim.set_motor_references(theta)
-                self.sim.step(self.ctrl_dt)
+                self._advance(self.ctrl_dt, True)
         except self._SimulationError as exc:
             failure = str(exc)
         self._theta_prev = theta
@@ -602,6 +602,12 @@ class VSWristEnv(gym.Env):
 
     def _before_physics(self, t: float) -> None:
         """Apply external loads for the coming control period."""
+
+    def _advance(self, duration: float, first: bool) -> None:
+        """Advance the physics by ``duration`` within a control period (``first``: its first part, where the
+        loop-closure peak restarts). Tasks that must see every substep (a force averaged over the period, the
+        instant of an impact) override it and step one substep at a time."""
+        self.sim.step(duration, restart_peak=first)
 
     def _contact_force(self) -> float:
         """Contact force (N) after a step; the simulator's sensors are current (``posture()`` synced them)."""
