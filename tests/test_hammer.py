@@ -68,6 +68,7 @@ def test_strike_speed_is_the_head_speed_just_before_contact():
         rec.append((u.data.time - duration, float(u.data.xpos[u._head_body] @ u._normal)))
     u.sim.step = recording_step
     info = _episode(env, constant_policy(env, -0.5), 2)
+    assert info["struck"]
     t_abs = info["impact_time"] + u._t0
     times = np.array([t for t, _ in rec])
     k = int(np.argmin(np.abs(times - t_abs)))
@@ -89,12 +90,16 @@ def test_stiff_wrist_strikes_near_the_rigid_bound_and_springs_outrun_it():
 
 
 def test_flailing_does_not_succeed():
-    """Random and bang-bang actions (posture and stiffness) strike in time at >= 1.3 x the rigid bound in none of
-    the episodes; the hand-written rule does."""
+    """Random and bang-bang actions, in the default mode (posture and stiffness) and the residual mode (the
+    swing dithered), succeed in none of the episodes; the hand-written rule does. Over 20 episodes each (seeds
+    1000-1019) none succeeded either; without the on-the-nail and in-the-plane conditions, uniform random
+    posture references succeeded in 2 of 20 (up to 1.59 x the rigid bound: whipping the head about is fast)."""
+    for mode in ("posture_stiffness", "residual"):
+        env = gym.make(ID, config={"action_mode": mode})
+        for bang in (False, True):
+            rng = np.random.default_rng(0)
+            assert evaluate(env, lambda b=bang: random_policy(env, rng, b), range(1000, 1006))[1] == 0.0, (mode, bang)
     env = gym.make(ID)
-    for bang in (False, True):
-        rng = np.random.default_rng(0)
-        assert evaluate(env, lambda b=bang: random_policy(env, rng, b), range(1000, 1006))[1] == 0.0
     assert evaluate(env, lambda: adaptive_policy(env), range(1000, 1003))[1] > 0.0
 
 

@@ -10,7 +10,8 @@ anvil (a plate facing the swing) stands where the head is at FE = ``fe_strike``.
 
 A rigid wrist would bring the head to the anvil at the *rigid bound*: the speed limit times the lever (the
 head's speed per radian of FE over the leg's speed per radian of FE, at the strike posture;
-``info["rigid_speed"]``). The springs in series with the motors let the link outrun them: the motors lead,
+``info["rigid_speed"]``; ``info`` also holds ``struck``, ``impact_speed`` (m/s), ``impact_time`` (s) and
+``impact_offset`` (m, from the nail), zeros before a strike). The springs in series with the motors let the link outrun them: the motors lead,
 the springs deflect and store energy, and give it back. The agent sets the stiffness (the internal torque
 ``lam`` that the three PM motors hold in ker(J_a^T), VSA-hammer style: Garabini et al. ICRA 2011), and the
 posture channel may be ignored (the ``residual`` mode with ``posture_scale: 0`` is the stiffness track).
@@ -264,12 +265,19 @@ class HammerEnv(VSWristEnv):
 
     def _info(self, weighted: dict, final: bool, err=None) -> dict:
         info = super()._info(weighted, final, err)
+        # no strike yet: struck False and zeros (no NaN in info: equal episodes must give equal infos)
         s = getattr(self, "_strike", None)
-        info["impact_speed"] = float("nan") if s is None else s[1]
-        info["impact_time"] = float("nan") if s is None else s[0]
-        info["impact_offset"] = float("nan") if s is None else s[2]
-        info["rigid_speed"] = float(getattr(self, "_rigid", float("nan")))
+        info["struck"] = s is not None
+        info["impact_speed"] = 0.0 if s is None else s[1]
+        info["impact_time"] = 0.0 if s is None else s[0]
+        info["impact_offset"] = 0.0 if s is None else s[2]
+        info["rigid_speed"] = float(getattr(self, "_rigid", 0.0))
         return info
+
+    def __setstate__(self, state):
+        super().__setstate__(state)
+        if hasattr(self, "_handle"):  # the episode's handle length (the rebuilt model has the nominal one)
+            self.model.body_pos[self._head_body] = (self._handle, 0.0, 0.0)
 
     def _reset_state(self) -> None:
         super()._reset_state()

@@ -234,7 +234,7 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
 
         def end(env_, info):  # Hammer: the strike's normal speed (nan: no strike) and the rigid bound, m/s
             if "impact_speed" in info:
-                speeds.append(info["impact_speed"])
+                speeds.append(info["impact_speed"] if info["struck"] else float("nan"))
                 if label == "rule":
                     rigid.append(info["rigid_speed"])
         return evaluate(env, factory, seeds, out["terms"].setdefault(label, {}), out["returns"].setdefault(label, []),
