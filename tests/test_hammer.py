@@ -92,8 +92,8 @@ def test_stiff_wrist_strikes_near_the_rigid_bound_and_springs_outrun_it():
 def test_flailing_does_not_succeed():
     """Random and bang-bang actions, in the default mode (posture and stiffness) and the residual mode (the
     swing dithered), succeed in none of the episodes; the hand-written rule does. Over 20 episodes each (seeds
-    1000-1019) none succeeded either; without the on-the-nail and in-the-plane conditions, uniform random
-    posture references succeeded in 2 of 20 (up to 1.59 x the rigid bound: whipping the head about is fast)."""
+    1000-1019) flailing struck in time, on the nail, at most at 1.64 x the rigid bound (the success ratio is 1.75;
+    the rule reached 1.88-1.96 on 12 episodes)."""
     for mode in ("posture_stiffness", "residual"):
         env = gym.make(ID, config={"action_mode": mode})
         for bang in (False, True):
