@@ -391,13 +391,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--success", action="store_true",
                     help="print instead each task's success rate for random, bang-bang and zero residual actions, "
                          "every constant stiffness, the rule and the oracle")
-    ap.add_argument("--params", default=None, help="device preset (params), e.g. paper_knm or paper")
+    ap.add_argument("--params", default=None, help="device preset (params), e.g. paper_knm or paper, or a YAML path")
+    ap.add_argument("--config", default=None, metavar="JSON",
+                    help='environment settings merged into every task\'s, e.g. \'{"task": {"swing_speed": 0.5}}\'')
     ap.add_argument("--headroom", action="store_true",
                     help="print the headroom table (markdown) and Hammer's strike speeds after the usual tables")
     ap.add_argument("--write", default=None, metavar="PATH",
                     help="with --headroom: rewrite the 'headroom' generated block of PATH (docs/environments.md)")
     args = ap.parse_args(argv)
     config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
+    if args.config is not None:
+        import json
+        config.update(json.loads(args.config))
     if args.params is not None:
         config["params"] = args.params
     if args.success:
