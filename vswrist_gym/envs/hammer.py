@@ -11,10 +11,11 @@ anvil (a plate facing the swing) stands where the head is at FE = ``fe_strike``.
 A rigid wrist would bring the head to the anvil at the *rigid bound*: the speed limit times the lever (the
 head's speed per radian of FE over the leg's speed per radian of FE, at the strike posture;
 ``info["rigid_speed"]``; ``info`` also holds ``struck``, ``impact_speed`` (m/s), ``impact_time`` (s) and
-``impact_offset`` (m, from the nail), zeros before a strike). The springs in series with the motors let the link outrun them: the motors lead,
-the springs deflect and store energy, and give it back. The agent sets the stiffness (the internal torque
-``lam`` that the three PM motors hold in ker(J_a^T), VSA-hammer style: Garabini et al. ICRA 2011), and the
-posture channel may be ignored (the ``residual`` mode with ``posture_scale: 0`` is the stiffness track).
+``impact_offset`` (m, from the nail), zeros before a strike). The springs in series with the motors let the
+link outrun them: the motors lead, the springs deflect and store energy, and give it back. The agent sets the
+stiffness (the internal torque ``lam`` that the three PM motors hold in ker(J_a^T), VSA-hammer style: Garabini
+et al. ICRA 2011), and the posture channel may be ignored (the ``residual`` mode with ``posture_scale: 0`` is
+the stiffness track).
 
 Reward: on the step of the first strike, the head's speed along the anvil normal just before contact
 (``impact``, m/s / ``scales.speed``); ``miss`` -1 on the last step if no strike came by ``strike_deadline_s``
@@ -148,6 +149,8 @@ class HammerEnv(VSWristEnv):
         self._fe_strike = float(rng.uniform(*tp["fe_strike"]))
         self._ps = 0.0
         m = self.model
+        # in place, like the base's tool-mass randomisation (no recompilation; MuJoCo's constraint scaling
+        # keeps the compiled nominal head)
         m.body_pos[self._head_body] = (self._handle, 0.0, 0.0)
         m.body_mass[self._head_body] = self._head_mass
         # the capsule's axis is the body's Y axis: permute the cylinder's (x, x, z) inertia to (x, z, x)
