@@ -607,7 +607,10 @@ class VSWristEnv(gym.Env):
         """Advance the physics by ``duration`` within a control period (``first``: its first part, where the
         loop-closure peak restarts). Tasks that must see every substep (a force averaged over the period, the
         instant of an impact) override it and step one substep at a time."""
-        self.sim.step(duration, restart_peak=first)
+        if first:
+            self.sim.step(duration)
+        else:
+            self.sim.step(duration, restart_peak=False)
 
     def _contact_force(self) -> float:
         """Contact force (N) after a step; the simulator's sensors are current (``posture()`` synced them)."""
