@@ -13,8 +13,9 @@ in none (LoadHold, Drill: their best-return constant is above the energy bound; 
 cannot push past the fit).
 
 The agents that do succeed (seeds 1000-1019, ``probe --success --episodes 20``): Insertion the rule 20/20, Polish
-the rule 13/20, Impact the baseline 17/20, Drill the oracle 17/20, LoadHold the constant s = 0 8/20; the test asks
-for one success in 10.
+the rule 17/20 (its force averaged over the control period), Impact the baseline 17/20, Drill the oracle 17/20,
+LoadHold the constant s = 0 8/20; the test asks for one success in 10. Hammer's flailing is tested in
+tests/test_hammer.py (none of its flailing agents may succeed: its best constant does on some episodes).
 
 Residual-mode random actions (the baseline's reference dithered) are not asserted on Insertion: dithering can
 push the pin past the fit with moderate wall force, and one of 100 such episodes seated the pin with a peak wall

@@ -29,6 +29,7 @@ ENV_IDS = {
     "VSWrist/Impact-v0": "vswrist_gym.envs.impact:ImpactEnv",
     "VSWrist/Insertion-v0": "vswrist_gym.envs.insertion:InsertionEnv",
     "VSWrist/Drill-v0": "vswrist_gym.envs.drill:DrillEnv",
+    "VSWrist/Hammer-v0": "vswrist_gym.envs.hammer:HammerEnv",
 }
 
 TASKS = tuple(i.split("/")[1].removesuffix("-v0") for i in ENV_IDS)  # ("LoadHold", ...): the short names CLIs take

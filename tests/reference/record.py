@@ -5,7 +5,8 @@ actions from a fixed generator, and the analytic baseline at stiffness 0) with s
 happen inside the recording) and one forced divergence (the joint velocities are poisoned before step
 ``DIVERGE_AT``, so MuJoCo reports bad velocities and the env must terminate with the penalty), and stores the
 observations, rewards, terminations, truncations and the numeric ``info`` entries. The default output,
-``tests/reference/trajectories.npz``, was recorded from the code before the batched core existed;
+``tests/reference/trajectories.npz``, was recorded from the code before the batched core existed (Polish from
+that code plus its period-mean contact force, the one intended change; the other tasks' records were identical);
 ``tests/test_batch.py`` replays the same protocol and compares to it.
 """
 

@@ -304,12 +304,12 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._failure = None
         try:
             if self._latency > 0.0 and self._theta_prev is not None:
-                self.sim.step(self._latency)
+                self._advance_physics(self._latency, True)
                 self.sim.set_motor_references(theta)
-                self.sim.step(self.ctrl_dt - self._latency, restart_peak=False)
+                self._advance_physics(self.ctrl_dt - self._latency, False)
             else:
                 self.sim.set_motor_references(theta)
-                self.sim.step(self.ctrl_dt)
+                self._advance_physics(self.ctrl_dt, True)
         except self._SimulationError as exc:
             self._failure = str(exc)
             return
@@ -389,6 +389,15 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
 
     def _before_physics(self, t: float) -> None:
         """Apply external loads for the coming control period."""
+
+    def _advance_physics(self, duration: float, first: bool) -> None:
+        """Advance the physics by ``duration`` within a control period (``first``: its first part, where the
+        loop-closure peak restarts). Tasks that must see every substep (a force averaged over the period, the
+        instant of an impact) override it and step one substep at a time."""
+        if first:
+            self.sim.step(duration)
+        else:
+            self.sim.step(duration, restart_peak=False)
 
     def _contact_force(self) -> float:
         """Contact force (N) after a step; the simulator's sensors are current (``posture()`` synced them)."""

@@ -14,6 +14,14 @@ The rules (observation only):
 * Impact: stiff in free motion, soft from the first sign of contact until ``IMPACT_SOFT_S`` after the last;
 * Insertion: soft, except stiff for ``PUSH_S`` from the first time the fit resists (bottom force above
   ``PUSH_ON``): stiffness only while pushing the pin past the fit.
+* Hammer: moderately soft (``HAMMER_SOFT``) until the swing's reference starts to move, then full stiffness:
+  the motors need tens of milliseconds to raise the preload, so raising it from the swing's start makes the
+  springs stiffen while they are deflected, which adds energy that the strike takes back.
+
+Hammer has no hidden state worth an oracle; its "oracle" column is an optimised open-loop schedule instead:
+``HAMMER_KNOTS`` stiffness commands at fixed times from the swing's start, linear between, optimised with
+scipy (Powell) on training seeds (``--train-seeds``, from ``TRAIN_SEED0``) and evaluated on the probe's
+held-out seeds. ``--headroom`` prints the headroom table of docs/environments.md.
 
 ``--success`` prints instead, per task, the success rate (and mean return) of agents that should not succeed
 next to those that may: uniform random and bang-bang (+-1) actions in the default ``posture_stiffness`` mode
@@ -41,6 +49,9 @@ IMPACT_SOFT_S = 0.3  # s, the Impact rule stays soft this long after the last co
 IMPACT_MARGIN = 0.1  # Impact oracle: soft from this fraction of the path before the (hidden) wall
 SLEW = 4.0      # 1/s, largest rate of change of the stiffness command (full range in 0.5 s)
 HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last exceeded ERR_ON
+HAMMER_SOFT = -0.5   # Hammer rule: stiffness command before the swing starts (full stiffness from then)
+HAMMER_KNOTS = (0.0, 0.03, 0.06, 0.09, 0.12, 0.15)  # s after the swing's start: knots of the optimised schedule
+TRAIN_SEED0 = 100    # training seeds of the optimised schedule: TRAIN_SEED0, ... (the probe's start at 1000)
 
 
 def _slew(state: dict, s: float, dt: float) -> float:
@@ -74,6 +85,9 @@ def adaptive_policy(env):
             goal = float(obs[sl["force_target"]][0])
             state["s"] = float(np.clip(state["s"] + 0.02 * (goal - contact), -1.0, 1.0))
             s = state["s"]
+        elif task == "hammer":
+            state["go"] = state.get("go", False) or u._t >= u.tp["swing_start_s"] - 1e-9
+            return u.reference_to_action(target, 1.0 if state["go"] else HAMMER_SOFT)
         elif task == "impact":
             # stiff in free motion (the heavy tool's sag costs tracking), soft as soon as and for as long as the
             # touch sensor shows a contact, and for IMPACT_SOFT_S after it
@@ -95,6 +109,9 @@ def oracle_policy(env):
     u = env.unwrapped
     task = u.task
     state = {}
+
+    if task == "hammer":
+        return schedule_policy(env, optimised_schedule(u.spec.id, u._user_config))
 
     def act(obs):
         t = u._t
@@ -119,6 +136,45 @@ def oracle_policy(env):
         return u.reference_to_action(u._target, _slew(state, s, u.ctrl_dt))
     adaptive = adaptive_policy(env)
     return act
+
+
+def schedule_policy(env, values):
+    """Open-loop stiffness schedule on the task's reference: command ``values[k]`` at ``HAMMER_KNOTS[k]`` after
+    the swing's start (``task.swing_start_s``), linear between, the first before and the last after."""
+    u = env.unwrapped
+    sl = u.obs_slices["target"]
+    times = np.asarray(HAMMER_KNOTS) + u.tp["swing_start_s"]
+    values = np.clip(np.asarray(values, dtype=float), -1.0, 1.0)
+    return lambda obs: u.reference_to_action(np.asarray(obs)[sl], float(np.interp(u._t, times, values)))
+
+
+_SCHEDULES: dict = {}
+
+
+def optimised_schedule(env_id: str, config: dict | None = None, train_seeds: int = 6, maxfev: int = 160) -> tuple:
+    """The open-loop schedule (``HAMMER_KNOTS`` values) that maximises the mean return over ``train_seeds``
+    training episodes (seeds ``TRAIN_SEED0`` ...), by scipy's Powell method from the best constant command,
+    at most ``maxfev`` evaluations; cached per (id, config, seeds, maxfev)."""
+    import gymnasium as gym
+    from scipy.optimize import minimize
+
+    key = (env_id, repr(sorted((config or {}).items())), train_seeds, maxfev)
+    if key in _SCHEDULES:
+        return _SCHEDULES[key]
+    env = gym.make(env_id, config=dict(config or {}))
+    seeds = range(TRAIN_SEED0, TRAIN_SEED0 + train_seeds)
+    n = len(HAMMER_KNOTS)
+
+    def loss(x):
+        return -evaluate(env, lambda: schedule_policy(env, x), seeds)[0]
+
+    starts = {c: loss(np.full(n, c)) for c in CONSTANT_COMMANDS}
+    x0 = np.full(n, min(starts, key=starts.get))
+    res = minimize(loss, x0, method="Powell", bounds=[(-1.0, 1.0)] * n,
+                   options={"maxfev": maxfev, "xtol": 0.02, "ftol": 1e-3})
+    env.close()
+    _SCHEDULES[key] = tuple(float(v) for v in np.clip(res.x, -1.0, 1.0))
+    return _SCHEDULES[key]
 
 
 def constant_policy(env, s: float):
@@ -163,7 +219,10 @@ def evaluate(env, policy_factory, seeds, terms: dict | None = None, returns: lis
     return float(np.mean(totals)), float(np.mean(successes))
 
 
-def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None) -> dict:
+def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None, oracle: bool = True) -> dict:
+    """Every constant command, the rule and (``oracle``) the oracle or, for Hammer, the optimised schedule (whose
+    optimisation takes minutes) on episodes ``seed0 ...``: mean return and success rate, per-episode returns, and
+    paired differences to the best constant."""
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401
@@ -173,25 +232,78 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
     out = {"task": task, "constant": {}, "terms": {}, "returns": {}}
 
     def run(label, factory):
-        return evaluate(env, factory, seeds, out["terms"].setdefault(label, {}), out["returns"].setdefault(label, []))
+        speeds = out.setdefault("impact_speed", {}).setdefault(label, [])
+        rigid = out.setdefault("rigid_speed", [])
+
+        def end(env_, info):  # Hammer: the strike's normal speed (nan: no strike) and the rigid bound, m/s
+            if "impact_speed" in info:
+                speeds.append(info["impact_speed"] if info["struck"] else float("nan"))
+                if label == "rule":
+                    rigid.append(info["rigid_speed"])
+        return evaluate(env, factory, seeds, out["terms"].setdefault(label, {}), out["returns"].setdefault(label, []),
+                        on_end=end)
 
     for s in CONSTANT_COMMANDS:
         out["constant"][s] = run(f"s={s:+.1f}", lambda s=s: constant_policy(env, s))
     out["adaptive"] = run("rule", lambda: adaptive_policy(env))
-    out["oracle"] = run("oracle", lambda: oracle_policy(env))
+    if oracle:
+        out["oracle"] = run("oracle", lambda: oracle_policy(env))
     best = max(out["constant"], key=lambda s: out["constant"][s][0])
     out["best_constant"] = best
     out["gain"] = out["adaptive"][0] - out["constant"][best][0]
-    out["oracle_gain"] = out["oracle"][0] - out["constant"][best][0]
+    if oracle:
+        out["oracle_gain"] = out["oracle"][0] - out["constant"][best][0]
     # the same episodes for every agent: per-episode differences to the best constant remove the episode spread
     ref = np.array(out["returns"][f"s={best:+.1f}"])
     out["paired"] = {}
-    for label in ("rule", "oracle"):
+    for label in ("rule", "oracle") if oracle else ("rule",):
         d = np.array(out["returns"][label]) - ref
         se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
         out["paired"][label] = (float(d.mean()), se, float(np.mean(d > 0.0)))
     env.close()
+    if not out["rigid_speed"]:
+        del out["impact_speed"], out["rigid_speed"]
     return out
+
+
+HEADROOM_HEADER = ("| task | best constant | return | rule | rule - best (s.e.) | schedule | schedule - best (s.e.) |\n"
+                   "|---|---|---|---|---|---|---|")
+
+
+def headroom_rows(results) -> list[str]:
+    """Markdown rows of the headroom table from ``probe`` results: the best constant's mean return, the rule's and
+    the schedule's (Hammer: the optimised open-loop schedule; the others: the hidden-state oracle), each with its
+    paired mean difference to the best constant and the standard error of that mean."""
+    rows = []
+    for r in results:
+        best = r["best_constant"]
+        sched = "optimised" if r["task"] == "Hammer" else "oracle"
+        (rm, rse, _), (om, ose, _) = r["paired"]["rule"], r["paired"]["oracle"]
+        rows.append(f"| {r['task']} | s = {best:+.1f} | {r['constant'][best][0]:.1f} | {r['adaptive'][0]:.1f} | "
+                    f"{rm:+.1f} ({rse:.1f}) | {sched} {r['oracle'][0]:.1f} | {om:+.1f} ({ose:.1f}) |")
+    return rows
+
+
+def hammer_speed_lines(r) -> list[str]:
+    """Mean strike speed (m/s) per agent next to the rigid bound, from a Hammer ``probe`` result."""
+    rigid = float(np.mean(r["rigid_speed"]))
+    best = f"s={r['best_constant']:+.1f}"
+    ref = np.array(r["impact_speed"][best])
+    lines = [f"rigid bound (motor speed limit x lever) {rigid:.2f} m/s, mean over the episodes; strikes: episodes "
+             f"with a strike (late ones included; nan speeds are misses)"]
+    for label, v in r["impact_speed"].items():
+        v = np.array(v)
+        d = v - ref
+        ok = np.isfinite(d)
+        line = f"{label:<8} {np.nanmean(v) if np.isfinite(v).any() else float('nan'):6.2f} m/s"
+        if np.isfinite(v).any():
+            line += f"  = {np.nanmean(v) / rigid:4.2f} x rigid"
+        if ok.sum() > 1:
+            se = float(np.std(d[ok], ddof=1) / np.sqrt(ok.sum()))
+            line += (f"  vs best constant {d[ok].mean() / ref[ok].mean():+6.1%} (paired {d[ok].mean():+.2f} "
+                     f"({se:.2f}) m/s)")
+        lines.append(line + f", strikes {np.isfinite(v).sum()}/{len(v)}")
+    return lines
 
 
 def success_probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None) -> dict:
@@ -285,8 +397,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--success", action="store_true",
                     help="print instead each task's success rate for random, bang-bang and zero residual actions, "
                          "every constant stiffness, the rule and the oracle")
+    ap.add_argument("--params", default=None, help="device preset (params), e.g. paper_knm or paper, or a YAML path")
+    ap.add_argument("--config", default=None, metavar="JSON",
+                    help='environment settings merged into every task\'s, e.g. \'{"task": {"swing_speed": 0.5}}\'')
+    ap.add_argument("--headroom", action="store_true",
+                    help="print the headroom table (markdown) and Hammer's strike speeds after the usual tables")
+    ap.add_argument("--write", default=None, metavar="PATH",
+                    help="with --headroom: rewrite the 'headroom' generated block of PATH (docs/environments.md)")
     args = ap.parse_args(argv)
     config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
+    if args.config is not None:
+        import json
+        config.update(json.loads(args.config))
+    if args.params is not None:
+        config["params"] = args.params
     if args.success:
         print_success(args.tasks, args.episodes, args.seed0, config)
         return 0
@@ -312,6 +436,20 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{'agent':<8}" + "".join(f"{n:>14}" for n in names))
             for agent, t in r["terms"].items():
                 print(f"{agent:<8}" + "".join(f"{t[n]:>14.1f}" for n in names))
+    for r in results:
+        if "impact_speed" in r:
+            print(f"\n{r['task']}: normal strike speed (held-out seeds from {args.seed0})")
+            print("\n".join(hammer_speed_lines(r)))
+    if args.headroom:
+        table = HEADROOM_HEADER + "\n" + "\n".join(headroom_rows(results))
+        print("\n" + table)
+        if args.write:
+            from pathlib import Path
+
+            from .table import update
+            path = Path(args.write)
+            path.write_text(update(path.read_text(), {"headroom": table}))
+            print(f"{path}: headroom block updated")
     return 0
 
 

@@ -1,0 +1,291 @@
+"""``VSWrist/Hammer-v0``: swing a hammer and strike an anvil as fast as the springs allow.
+
+The tool is a hammer: a light handle and a head (a capsule whose axis points along the swing, so that its end
+face strikes) of mass ``head_mass`` at ``handle_length`` from the hand along the tool X axis; both are drawn
+per episode from their config ranges. The posture reference is fixed: at ``swing_start_s`` it ramps flexion
+from ``fe_start`` towards ``fe_end`` as fast as the motors allow (the leg whose motor turns fastest per radian
+of FE runs at the motors' speed limit, ``motor.speed_limit`` of the device preset, throughout), at a fixed RUD
+(``rud_range``) and PS = 0; gravity (along -Z_b) is across the swing, which moves the head horizontally. An
+anvil (a plate facing the swing) stands where the head is at FE = ``fe_strike``.
+
+A rigid wrist would bring the head to the anvil at the *rigid bound*: the speed limit times the lever (the
+head's speed per radian of FE over the leg's speed per radian of FE, at the strike posture;
+``info["rigid_speed"]``; ``info`` also holds ``struck``, ``impact_speed`` (m/s), ``impact_time`` (s) and
+``impact_offset`` (m, from the nail), zeros before a strike). The springs in series with the motors let the
+link outrun them: the motors lead, the springs deflect and store energy, and give it back. The agent sets the
+stiffness (the internal torque ``lam`` that the three PM motors hold in ker(J_a^T), VSA-hammer style: Garabini
+et al. ICRA 2011), and the posture channel may be ignored (the ``residual`` mode with ``posture_scale: 0`` is
+the stiffness track).
+
+Reward: on the step of the first strike, the head's speed along the anvil normal just before contact
+(``impact``, m/s / ``scales.speed``); ``miss`` -1 on the last step if no strike came by ``strike_deadline_s``
+after the swing began (a late strike earns no ``impact`` either); preload energy at a small weight.
+Success: a strike by the deadline at a normal speed of at least ``success_speed_ratio`` x the rigid bound, on
+the nail (the first contact within ``success_radius`` of where the nominal swing meets the anvil), with RUD and PS
+within ``success_plane_error`` of the swing's until the strike: a hammer blow, not a flailing hit (uniform random
+posture references whip the head about and reach 1.6 x the rigid bound on some episodes). The default ratio, 1.75,
+lies between what flailing reached (at most 1.64) and what the hand-written schedule reaches (at least 1.88);
+fixed stiffnesses reach it on some episodes.
+
+Per step, the physics runs one substep at a time (``_advance_physics``) so that the strike's instant and the speed
+just before it are exact to the substep (1 ms), not to the control period.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from .shared import add_mocap_box_body, frame_from_z, quat_from_matrix
+from .base import VSWristEnv
+
+ANVIL_HALF = (0.05, 0.045, 0.008)  # m: along the handle, across the swing plane, thickness (along the normal)
+HEAD_HALF_LENGTH = 0.02            # m, half the head's length along the swing (its axis)
+NOMINAL_HEAD_MASS = 0.2            # kg, compiled in the model; each episode sets its own mass in place
+
+
+def head_inertia(mass: float, radius: float, half_length: float) -> np.ndarray:
+    """Principal inertia (kg m^2) of a solid cylinder of ``mass`` about its centre, axis along local Z."""
+    ix = mass * (3.0 * radius ** 2 + (2.0 * half_length) ** 2) / 12.0
+    return np.array([ix, ix, 0.5 * mass * radius ** 2])
+
+
+def ramp_reference(fe0: float, fe1: float, rate_of, t_start: float, duration: float, dt: float = 1e-3):
+    """Times (s) and FE (rad) of a ramp from ``fe0`` to ``fe1`` starting at ``t_start`` whose FE rate at each
+    FE is ``rate_of(fe)`` (rad/s, > 0), held at ``fe1`` after; integrated with ``dt``. NumPy arrays, so that a
+    batched core can build one per episode."""
+    ts, fes = [0.0, t_start], [fe0, fe0]
+    t, fe, sign = t_start, fe0, math.copysign(1.0, fe1 - fe0)
+    while (fe1 - fe) * sign > 0.0 and t < duration:
+        # midpoint rule: rate at half a step ahead
+        r = rate_of(fe + 0.5 * dt * sign * rate_of(fe))
+        fe = fe + sign * r * dt
+        if (fe1 - fe) * sign < 0.0:
+            fe = fe1
+        t += dt
+        ts.append(t)
+        fes.append(fe)
+    ts.append(max(duration, t) + dt)
+    fes.append(fes[-1])
+    return np.asarray(ts), np.asarray(fes)
+
+
+class HammerEnv(VSWristEnv):
+    task = "hammer"
+    task_id = "VSWrist/Hammer-v0"
+    summary = ("swing a hammer (random head mass and handle length) through a fixed, motor-speed-limited FE "
+               "motion and strike an anvil as fast as possible")
+    success_text = ("a strike within {strike_deadline_s:g} s of the swing's start, at a normal speed "
+                    ">= {success_speed_ratio:g} x the rigid bound (motor speed limit x lever), on the nail (the "
+                    "first contact within {success_radius:g} m of where the nominal swing meets the anvil), RUD and "
+                    "PS within {success_plane_error:g} rad of the swing's until then")
+    task_spec = {
+        "head_mass": ("interval", 0.001, 5.0),
+        "handle_length": ("interval", 0.03, 0.4),
+        "handle_mass": ("number", 0.001, 1.0),
+        "handle_radius": ("number", 0.001, 0.03),
+        "head_radius": ("number", 0.003, 0.05),
+        "rud_range": ("interval", -0.8, 0.8),
+        "fe_start": ("number", -0.78, 0.95),
+        "fe_strike": ("interval", -0.78, 0.95),
+        "fe_end": ("number", -0.78, 0.95),
+        "swing_start_s": ("number", 0.0, 600.0),
+        "swing_speed": ("number", 0.01, 1.0),
+        "strike_deadline_s": ("number", 0.0, 600.0),
+        "success_speed_ratio": ("number", 0.0, 100.0),
+        "success_radius": ("number", 0.0, 1.0),
+        "success_plane_error": ("number", 0.0, 10.0),
+        "friction": ("number", 0.0, 5.0),
+    }
+    task_reward_terms = ("impact", "miss")
+
+    def _validate_task(self) -> None:
+        from .config import EnvConfigError
+        tp = self.tp
+        if not (tp["fe_start"] < tp["fe_strike"][0] and tp["fe_strike"][1] < tp["fe_end"]):
+            raise EnvConfigError(f"'task.fe_start' < 'task.fe_strike' < 'task.fe_end' is required (the swing "
+                                 f"passes the anvil), got {tp['fe_start']:g}, {list(tp['fe_strike'])}, "
+                                 f"{tp['fe_end']:g}")
+
+    # ------------------------------------------------------------------ scene
+    def _scene(self, spec) -> None:
+        tp = self.tp
+        L = 0.5 * (tp["handle_length"][0] + tp["handle_length"][1])
+        # the handle collides with nothing; only the head strikes (contype 2 against the anvil's conaffinity 2)
+        spec.body("tool").add_geom(name="hammer_handle", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                                   fromto=[0.02, 0, 0, L, 0, 0], size=[tp["handle_radius"], 0, 0],
+                                   mass=tp["handle_mass"], contype=0, conaffinity=0, rgba=[0.55, 0.4, 0.25, 1],
+                                   group=1)
+        head = spec.body("tool").add_body(name="hammer_head", pos=[L, 0, 0])
+        r = tp["head_radius"]
+        head.add_geom(name="task_head", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                      fromto=[0, -HEAD_HALF_LENGTH, 0, 0, HEAD_HALF_LENGTH, 0], size=[r, 0, 0],
+                      mass=NOMINAL_HEAD_MASS, contype=2, conaffinity=0, condim=3,
+                      friction=[tp["friction"], 0.005, 0.0001], rgba=[0.35, 0.35, 0.4, 1], group=1)
+        body = add_mocap_box_body(spec, "task_anvil", [(ANVIL_HALF, (0, 0, -ANVIL_HALF[2]), None)],
+                                  rgba=(0.45, 0.45, 0.5, 1), friction=tp["friction"])
+        self._add_touch_sensor(spec, body, "anvil_touch", (ANVIL_HALF[0], ANVIL_HALF[1], ANVIL_HALF[2] + 0.01),
+                               pos=(0, 0, -ANVIL_HALF[2] + 0.01))
+
+    def _scene_ids(self) -> None:
+        m = self.model
+        self._head_body = int(m.body("hammer_head").id)
+        self._head_geom = int(m.geom("task_head").id)
+        self._anvil_geom = int(m.geom("task_task_anvil_0").id)
+        self._mocap = int(m.body("task_anvil").mocapid[0])
+        self._touch_adr = self._sensor_adr("anvil_touch")
+        self._vel6 = np.zeros(6)
+        self._cforce = np.zeros(6)
+        self._force_sum, self._force_n = 0.0, 0
+
+    # ------------------------------------------------------------------ episode
+    def _task_reset(self, rng):
+        tp = self.tp
+        self._head_mass = float(rng.uniform(*tp["head_mass"]))
+        self._handle = float(rng.uniform(*tp["handle_length"]))
+        self._rud = float(rng.uniform(*tp["rud_range"]))
+        self._fe_strike = float(rng.uniform(*tp["fe_strike"]))
+        self._ps = 0.0
+        m = self.model
+        # in place, like the base's tool-mass randomisation (no recompilation; MuJoCo's constraint scaling
+        # keeps the compiled nominal head)
+        m.body_pos[self._head_body] = (self._handle, 0.0, 0.0)
+        m.body_mass[self._head_body] = self._head_mass
+        # the capsule's axis is the body's Y axis: permute the cylinder's (x, x, z) inertia to (x, z, x)
+        ix, _, iz = head_inertia(self._head_mass, tp["head_radius"], HEAD_HALF_LENGTH)
+        m.body_inertia[self._head_body] = (ix, iz, ix)
+        self._swing_t, self._swing_fe = ramp_reference(tp["fe_start"], tp["fe_end"], self._fe_rate,
+                                                       tp["swing_start_s"], self.cfg["episode_s"])
+        self._strike = None          # (time s, normal speed m/s) of the first strike
+        self._impact_reward = 0.0    # the strike's reward, paid on the step it happened
+        self._rigid = self.rigid_speed()
+        return np.array([self._rud, tp["fe_start"]]), self._ps, -1.0
+
+    def _fe_rate(self, fe: float) -> float:
+        """FE rate (rad/s) at which the fastest-turning PM motor runs at ``swing_speed`` x its speed limit."""
+        return self.tp["swing_speed"] * self.nominal_params.motor.speed_limit / self._leg_rate(fe)
+
+    def _leg_rate(self, fe: float) -> float:
+        """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid)."""
+        kin = self._kinematics()
+        h = 1e-5
+        qa = kin.joint_angles(np.array([self._rud, fe + h]))[0::4]
+        qb = kin.joint_angles(np.array([self._rud, fe - h]))[0::4]
+        return float(np.max(np.abs(qa - qb)) / (2 * h))
+
+    def _kinematics(self):
+        if not hasattr(self, "_kin"):
+            from ..kinematics import WristKinematics
+            self._kin = WristKinematics(self.nominal_params)
+        return self._kin
+
+    def _head_point(self, fe: float) -> np.ndarray:
+        return self.tool_point(np.array([self._rud, fe]), self._ps, np.array([self._handle, 0.0, 0.0]))
+
+    def swing_direction(self, fe: float) -> np.ndarray:
+        """Unit direction (base frame) in which the head centre moves as FE grows, at (rud, fe), rigid."""
+        h = 1e-5
+        d = self._head_point(fe + h) - self._head_point(fe - h)
+        return d / np.linalg.norm(d)
+
+    def rigid_speed(self) -> float:
+        """The rigid bound (m/s): the head's speed along the anvil normal at the strike posture when the link
+        follows the motors rigidly along the swing, the fastest motor at its speed limit (x ``swing_speed``):
+        speed limit x lever, the lever being the head's speed per radian of FE over the leg's."""
+        fe, h = self._fe_strike, 1e-5
+        lever = np.linalg.norm(self._head_point(fe + h) - self._head_point(fe - h)) / (2 * h)  # m per rad of FE
+        return self._fe_rate(fe) * lever
+
+    def _after_reset(self) -> None:
+        # the anvil's face (its +Z) meets the head's end face at the strike posture, facing the swing
+        n = self.swing_direction(self._fe_strike)
+        c = self._head_point(self._fe_strike)
+        face = c + (HEAD_HALF_LENGTH + self.tp["head_radius"]) * n
+        up = np.array([0.0, 0.0, 1.0])
+        R = frame_from_z(-n, y_hint=up - (up @ n) * n)
+        self.data.mocap_pos[self._mocap] = face
+        self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
+        self._normal = n  # into the anvil
+        self._face = face  # the nail: where the head's face meets the anvil on the nominal swing
+        self._force_sum, self._force_n = 0.0, 0
+        self._t0 = float(self.data.time)  # the episode's t = 0 (after the settling)
+
+    def _reference(self, t: float) -> np.ndarray:
+        return np.array([self._rud, float(np.interp(t, self._swing_t, self._swing_fe)), self._ps])
+
+    # ------------------------------------------------------------------ physics, one substep at a time
+    def _advance_physics(self, duration: float, first: bool) -> None:
+        m, d, f = self.model, self.data, self._cforce
+        hg, ag = self._head_geom, self._anvil_geom
+        dt = self.sim.timestep
+        if first:
+            self._force_sum, self._force_n = 0.0, 0
+        for k in range(int(round(duration / dt))):
+            self.sim.step(dt, restart_peak=first and k == 0)
+            # after mj_step the contact list, the solved forces and the body velocities are those of the state
+            # the substep started from: the first substep that finds the head on the anvil gives the speed just
+            # before any contact force acted
+            for i in range(d.ncon):
+                c = d.contact[i]
+                if (c.geom1 == hg and c.geom2 == ag) or (c.geom1 == ag and c.geom2 == hg):
+                    if self._strike is None:
+                        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, self._head_body, self._vel6, 0)
+                        t = d.time - self._t0 - dt
+                        off = c.pos - self._face
+                        off -= (off @ self._normal) * self._normal  # in the face's plane
+                        self._strike = (t, float(self._vel6[3:] @ self._normal), float(np.linalg.norm(off)))
+                    mujoco.mj_contactForce(m, d, i, f)
+                    self._force_sum += f[0]
+            self._force_n += 1
+
+    def _contact_force(self) -> float:
+        """Mean normal force (N) of the anvil on the head over the last control period's substeps."""
+        if self._force_n == 0:
+            return float(self.data.sensordata[self._touch_adr])
+        out = self._force_sum / self._force_n
+        self._force_sum, self._force_n = 0.0, 0
+        return out
+
+    # ------------------------------------------------------------------ reward and success
+    def timely(self) -> bool:
+        """Whether the head has struck the anvil, by the deadline after the swing began."""
+        return self._strike is not None and \
+            self._strike[0] <= self.tp["swing_start_s"] + self.tp["strike_deadline_s"]
+
+    def _task_reward_terms(self, err) -> dict:
+        if not self._paid:  # until the strike: how far RUD and PS left the swing's plane
+            self._off_plane = max(self._off_plane, abs(float(err[0])), abs(float(err[2])))
+        impact = 0.0
+        if self._strike is not None and not self._paid:
+            self._paid = True
+            impact = self._strike[1] / self.cfg["scales"]["speed"] if self.timely() else 0.0
+        last = self._step >= self.episode_steps
+        return {"impact": impact, "miss": -1.0 if last and not self.timely() else 0.0}
+
+    def _success(self) -> bool:
+        return self.timely() and self._strike[1] >= self.tp["success_speed_ratio"] * self._rigid and \
+            self._strike[2] <= self.tp["success_radius"] and self._off_plane <= self.tp["success_plane_error"]
+
+    def _info(self, weighted: dict, final: bool, err=None) -> dict:
+        info = super()._info(weighted, final, err)
+        # no strike yet: struck False and zeros (no NaN in info: equal episodes must give equal infos)
+        s = getattr(self, "_strike", None)
+        info["struck"] = s is not None
+        info["impact_speed"] = 0.0 if s is None else s[1]
+        info["impact_time"] = 0.0 if s is None else s[0]
+        info["impact_offset"] = 0.0 if s is None else s[2]
+        info["rigid_speed"] = float(getattr(self, "_rigid", 0.0))
+        return info
+
+    def __setstate__(self, state):
+        super().__setstate__(state)
+        if hasattr(self, "_handle"):  # the episode's handle length (the rebuilt model has the nominal one)
+            self.model.body_pos[self._head_body] = (self._handle, 0.0, 0.0)
+
+    def _reset_state(self) -> None:
+        super()._reset_state()
+        self._paid = False
+        self._t0 = 0.0
+        self._off_plane = 0.0  # rad, largest RUD or PS error before the strike
