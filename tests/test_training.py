@@ -496,3 +496,55 @@ def test_compare_end_to_end(tmp_path):
     assert res.stdout.count("loaded") == 4 and "ppo seed 2] train" in res.stdout
     summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
     assert summary["rows"]["PPO"]["return"]["n"] == 3 and summary["rows"]["SAC"]["return"]["n"] == 3
+
+
+# ------------------------------------------------------------------------------------------- tracks
+
+
+def _track_rollout(env_id: str, track: str, posture_action: float) -> np.ndarray:
+    import gymnasium as gym
+
+    cfg = hparams.with_track(hparams.load_config("ppo", env_id), track)
+    env = gym.make(env_id, **cfg.env_kwargs)
+    env.reset(seed=5)
+    out = []
+    for _ in range(15):
+        a = np.array([posture_action] * 3 + [0.3], dtype=np.float32)
+        _, _, _, _, info = env.step(a)
+        # the wrist's state (the observation also echoes the action itself, prev_action)
+        out.append([*env.unwrapped.sim.posture(), info["lam"], info["contact_force"], info["elastic_energy"]])
+    env.close()
+    return np.array(out)
+
+
+@pytest.mark.parametrize("env_id", ["VSWrist/Polish-v0", "VSWrist/LoadHold-v0"])
+def test_stiffness_track_ignores_the_posture_outputs(env_id):
+    """On the stiffness track the posture reference is the task's: policies that differ only in their posture
+    outputs give the same episode; on the full track they do not."""
+    a, b = _track_rollout(env_id, "stiffness", -0.8), _track_rollout(env_id, "stiffness", 0.8)
+    np.testing.assert_array_equal(a, b)
+    a, b = _track_rollout(env_id, "full", -0.8), _track_rollout(env_id, "full", 0.8)
+    assert np.abs(a - b).max() > 1e-3
+
+
+def test_track_of_entries_and_bad_tracks():
+    assert hparams.track_of(hparams.load_config("ppo", "VSWrist/Polish-v0").env_kwargs) == "full"
+    assert hparams.track_of(hparams.load_config("ppo", "VSWrist/Hammer-v0").env_kwargs) == "stiffness"
+    assert hparams.track_of({"action_mode": "posture_stiffness"}) == "custom"
+    with pytest.raises(hparams.ConfigError, match="posture_scale"):  # a stiffness-only entry has no full track
+        hparams.with_track(hparams.load_config("ppo", "VSWrist/Hammer-v0"), "full")
+    with pytest.raises(hparams.ConfigError, match="track must be one of"):
+        hparams.with_track(hparams.load_config("ppo", "VSWrist/Polish-v0"), "posture")
+
+
+def test_train_on_the_stiffness_track_and_refuse_a_mixed_resume(tmp_path):
+    out = tmp_path / "stiff_run"
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--timesteps", "256", "--n-envs", "2", "--track",
+                  "stiffness", "--out", out)
+    assert res.returncode == 0, res.stderr
+    kwargs = yaml.safe_load((out / "config.yaml").read_text())["hyperparameters"]["env_kwargs"]
+    assert hparams.track_of(kwargs) == "stiffness"
+    res = vswrist("train", "--task", TASK, "--algo", "ppo", "--timesteps", "512", "--track", "full", "--resume",
+                  "--out", out)
+    assert res.returncode == 2 and "stiffness-track run, not full" in res.stderr
+    assert res.stderr.strip().count("\n") == 0

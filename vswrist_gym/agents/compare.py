@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config
+from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, load_config, track_of
 from vswrist_gym.agents.protocol import (METRICS, check_eval_seeds, evaluate, json_safe, summarise,
                                          write_metrics, write_partial)
 from vswrist_gym.agents.runs import (RunDirError, TrainedAgent, check_new_out, check_seed, check_writable,
@@ -38,7 +38,8 @@ def _short(env_id: str) -> str:
     return env_id.split("/")[-1].rsplit("-v", 1)[0]
 
 
-def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | None, config, retrain: bool):
+def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | None, config, retrain: bool,
+             track: str | None = None):
     """What a (algo, seed) run needs: ('load' | 'resume' | 'train', steps wanted)."""
     if retrain and (run_dir / "config.yaml").exists():  # only a run is deleted; any other folder is refused later
         shutil.rmtree(run_dir)
@@ -47,6 +48,9 @@ def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | 
         cfg, old_seed = read_config(run_dir)
         if cfg.env_id != env_id or cfg.algo != algo or old_seed != seed:
             raise RunDirError(f"{run_dir} holds {cfg.algo} seed {old_seed} on {cfg.env_id}; use --retrain or --out")
+        if track is not None and track_of(cfg.env_kwargs) != track:
+            raise RunDirError(f"{run_dir} is a {track_of(cfg.env_kwargs)}-track run, not {track}; use --retrain or "
+                              "--out")
         run_json = run_dir / "run.json"
         done = json.loads(run_json.read_text()).get("num_timesteps", 0) if run_json.exists() else 0
         if (run_dir / "model.zip").exists() and done >= wanted:
@@ -55,7 +59,8 @@ def plan_run(env_id: str, algo: str, seed: int, run_dir: Path, timesteps: int | 
     return "train", wanted
 
 
-def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: bool, log) -> None:
+def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: bool, log,
+                  track: str | None = None) -> None:
     """Run the planned trainings: in this process (jobs = 1) or as up to `jobs` concurrent `vswrist train`
     subprocesses (each logs to <run_dir>.log)."""
     import subprocess
@@ -69,7 +74,7 @@ def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: b
             start = time.time()
             try:
                 train(env_id, p["algo"], p["run_dir"], config=p["config"], timesteps=p["wanted"], seed=p["seed"],
-                      n_envs=n_envs, resume=p["action"] == "resume", progress=progress, log=log)
+                      n_envs=n_envs, resume=p["action"] == "resume", progress=progress, log=log, track=track)
                 p["what"] = f"{p['action']} {p['wanted']} steps in {time.time() - start:.0f} s"
             except TrainingError as exc:
                 p["failed"] = str(exc)
@@ -94,6 +99,8 @@ def run_trainings(env_id: str, plans: list[dict], jobs: int, n_envs, progress: b
                 cmd += ["--config", str(p["config"])]
             if n_envs:
                 cmd += ["--n-envs", str(n_envs)]
+            if track:
+                cmd += ["--track", track]
             if p["action"] == "resume":
                 cmd.append("--resume")
             p["run_dir"].parent.mkdir(parents=True, exist_ok=True)
@@ -262,7 +269,8 @@ def plot_traces(path: Path, traces: dict[str, dict], title: str, highlight: str 
 def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, stiffness=DEFAULT_STIFFNESS_LEVELS,
             out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
             n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
-            jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=print) -> dict:
+            jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=print,
+            track: str | None = None) -> dict:
     from vswrist_gym.agents.evaluate import AgentSpec
     from vswrist_gym.agents.runs import limit_threads
     from vswrist_gym.agents.train import check_run_out, task_id
@@ -270,7 +278,9 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
     seeds = [check_seed(s, "--seeds") for s in seeds]  # training seeds, and evaluation seeds below
     check_eval_seeds(seeds, episodes)
     env_id = task_id(task)
-    out = Path(out) if out else Path("runs") / "compare" / _short(env_id)
+    if track is not None and track not in TRACKS:
+        raise ConfigError(f"--track must be one of {', '.join(TRACKS)}, got {track!r}")
+    out = Path(out) if out else Path("runs") / "compare" / (_short(env_id) + (f"_{track}" if track else ""))
     check_new_out(out, allowed=COMPARE_OUTPUT_NAMES,
                   what=f"a vswrist compare output folder ({', '.join(COMPARE_OUTPUT_NAMES)})")
     if runs_dir:
@@ -285,7 +295,8 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
     for algo in algos:
         for s in seeds:
             run_dir = (Path(runs_dir) if runs_dir else out / "runs") / f"{algo}_seed{s}"
-            action, wanted = plan_run(env_id, algo, s, run_dir, timesteps.get(algo), configs.get(algo), retrain)
+            action, wanted = plan_run(env_id, algo, s, run_dir, timesteps.get(algo), configs.get(algo), retrain,
+                                      track)
             plans.append({"algo": algo, "seed": s, "run_dir": run_dir, "action": action, "wanted": wanted,
                           "config": configs.get(algo), "what": f"loaded ({wanted} steps)"})
             runs[algo].append(run_dir)
@@ -298,7 +309,7 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
     for p in plans:
         if p["action"] == "load":
             log(f"[{p['algo']} seed {p['seed']}] loaded {p['run_dir']} ({p['wanted']} steps)")
-    run_trainings(env_id, plans, jobs, n_envs, progress, log)
+    run_trainings(env_id, plans, jobs, n_envs, progress, log, track)
     training = {f"{p['algo']}_seed{p['seed']}": p["what"] for p in plans}
     # a run whose environment failed is reported and left out, not silently dropped
     failed_runs = {p["run_dir"] for p in plans if p.get("failed")}
@@ -361,7 +372,10 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
     plot_traces(out / "traces.png", traces, f"{env_id}: evaluation episode (seed {trace_at[0]}, episode 0)",
                 highlight=verdict.get("best_baseline"))
     footprint = {a.upper(): sum(folder_bytes(d) for d in runs[a]) for a in algos}
-    doc = {"task": env_id, "seeds": seeds, "episodes_per_seed": episodes, "stiffness_levels": list(stiffness),
+    # the track the learned runs trained on (from their own configs, so loaded runs count as they are)
+    run_tracks = sorted({track_of(json.loads(k)) for k in env_kwargs_seen})
+    doc = {"task": env_id, "track": "/".join(run_tracks) or None, "seeds": seeds, "episodes_per_seed": episodes,
+           "stiffness_levels": list(stiffness),
            "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
            "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
            "load_average_1min": {"start": round(load_start, 2), "end": round(os.getloadavg()[0], 2)},
@@ -399,6 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ppo-config", help="PPO hyperparameter file (default configs/ppo.yaml)")
     p.add_argument("--sac-config", help="SAC hyperparameter file (default configs/sac.yaml)")
     p.add_argument("--n-envs", type=int, help="parallel environments per training run (overrides n_envs)")
+    p.add_argument("--track", choices=TRACKS,
+                   help="stiffness: the policies set only the stiffness; full: posture and stiffness (default: as "
+                        "the config entries say); the default output folder gets the track as a suffix")
     p.add_argument("--jobs", type=int, default=2,
                    help="training runs at a time, as subprocesses (default 2: one per core of a 2-core machine)")
     p.add_argument("--retrain", action="store_true", help="delete and retrain existing runs in --out")
@@ -422,7 +439,7 @@ def main(argv: list[str] | None = None) -> int:
                       out=args.out, timesteps={"ppo": args.ppo_timesteps, "sac": args.sac_timesteps},
                       configs={"ppo": args.ppo_config, "sac": args.sac_config}, n_envs=args.n_envs,
                       retrain=args.retrain, analytic=not args.no_analytic, progress=not args.no_progress,
-                      jobs=args.jobs, runs_dir=args.runs_dir, argv=argv)
+                      jobs=args.jobs, runs_dir=args.runs_dir, argv=argv, track=args.track)
     except (ConfigError, RunDirError, ValueError) as exc:
         print(f"vswrist compare: error: {exc}", file=sys.stderr)
         return 2

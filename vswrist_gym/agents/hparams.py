@@ -21,7 +21,7 @@ from __future__ import annotations
 import ast
 import copy
 import inspect
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -295,6 +295,44 @@ def parse_policy_kwargs(value: Any) -> dict:
 
 
 VEC_ENVS = ("batch", "subproc", "dummy")
+
+
+# The two tracks of the benchmark (docs/training.md). "stiffness": the posture reference is the task's own and the
+# policy sets only the stiffness (the residual action mode with posture_scale 0: its posture outputs are ignored);
+# "full": posture and stiffness, as the entry's residual says (posture_scale > 0).
+TRACKS = ("full", "stiffness")
+
+
+def track_of(env_kwargs: dict) -> str:
+    """The track an entry's env_kwargs train on: 'stiffness', 'full', or 'custom' (another action mode)."""
+    if env_kwargs.get("action_mode") != "residual":
+        return "custom"
+    scale = (env_kwargs.get("residual") or {}).get("posture_scale")
+    if scale is None:  # the environment's default residual, which trims the posture
+        return "full"
+    return "stiffness" if float(scale) == 0.0 else "full"
+
+
+def with_track(cfg: "RunConfig", track: str | None) -> "RunConfig":
+    """The config on `track` (None: as the entry says). The stiffness track sets residual.posture_scale to 0; the
+    full track keeps the entry's posture residual and refuses an entry that has none."""
+    if track is None:
+        return cfg
+    if track not in TRACKS:
+        raise ConfigError(f"track must be one of {', '.join(TRACKS)}, got {track!r}")
+    kwargs = copy.deepcopy(cfg.env_kwargs)
+    if kwargs.get("action_mode", "residual") != "residual":
+        raise ConfigError(f"the {track} track needs env_kwargs.action_mode 'residual', the entry of {cfg.env_id} "
+                          f"has {kwargs['action_mode']!r}")
+    kwargs["action_mode"] = "residual"
+    if track == "stiffness":
+        kwargs["residual"] = {**(kwargs.get("residual") or {}), "posture_scale": 0.0}
+    elif track_of(kwargs) != "full":
+        raise ConfigError(f"the entry of {cfg.env_id} is stiffness-only (residual.posture_scale 0); the full track "
+                          "needs a posture_scale > 0 in env_kwargs.residual")
+    raw = copy.deepcopy(cfg.raw)
+    raw["env_kwargs"] = kwargs
+    return replace(cfg, env_kwargs=kwargs, raw=raw)
 
 
 def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunConfig:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, RunConfig, load_config
+from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, RunConfig, load_config, track_of, with_track
 from vswrist_gym.agents.runs import (VECNORM_FILE, RunDirError, atomic_write_bytes, check_env_id, check_env_kwargs,
                                      check_new_out, check_seed, check_writable, created_root, latest_checkpoint,
                                      limit_threads, load_newest_intact, make_vec_env, model_bytes, override,
@@ -166,9 +166,11 @@ def _remove_half_made(run_dir: Path, root: Path | None) -> None:
 
 def train(task: str, algo: str, out: str | Path, config: str | Path | None = None, timesteps: int | None = None,
           seed: int = 0, n_envs: int | None = None, resume: bool = False, progress: bool = True,
-          argv: list[str] | None = None, torch_threads: int = 1, log=print, vec_env: str | None = None) -> Path:
+          argv: list[str] | None = None, torch_threads: int = 1, log=print, vec_env: str | None = None,
+          track: str | None = None) -> Path:
     """Train (or resume) one run; returns the run directory. Raises ConfigError / RunDirError on bad input,
-    before anything is written; a new run that fails to start leaves nothing behind."""
+    before anything is written; a new run that fails to start leaves nothing behind. ``track``: 'stiffness' (the
+    policy sets only the stiffness) or 'full' (posture and stiffness); None trains the entry as it is."""
     run_dir = Path(out)
     seed = check_seed(seed)
     if algo not in ALGO_NAMES:
@@ -185,10 +187,13 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
         if cfg.env_id != env_id or cfg.algo != algo:
             raise RunDirError(f"{run_dir} holds a {cfg.algo.upper()} run on {cfg.env_id}, "
                               f"not {algo.upper()} on {env_id}")
+        if track is not None and track_of(cfg.env_kwargs) != track:
+            raise RunDirError(f"{run_dir} is a {track_of(cfg.env_kwargs)}-track run, not {track}")
         cfg = override(cfg, n_timesteps=timesteps, n_envs=n_envs, vec_env=vec_env)
         note_ended_invocation(run_dir, log)
     else:
-        cfg = override(load_config(algo, env_id, config), n_timesteps=timesteps, n_envs=n_envs, vec_env=vec_env)
+        cfg = override(with_track(load_config(algo, env_id, config), track), n_timesteps=timesteps, n_envs=n_envs,
+                       vec_env=vec_env)
         check_env_kwargs(cfg.env_id, cfg.env_kwargs)
         created = created_root(run_dir)
     prefix = f"train_{int(time.time())}"
@@ -294,6 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vec-env", choices=("batch", "subproc", "dummy"),
                    help="how the environments run (overrides vec_env; default batch: one process, physics on "
                         "threads)")
+    p.add_argument("--track", choices=TRACKS,
+                   help="stiffness: the policy sets only the stiffness (posture reference = the task's); full: "
+                        "posture and stiffness (default: as the config entry says)")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -315,7 +323,8 @@ def main(argv: list[str] | None = None) -> int:
         _positive("--torch-threads", args.torch_threads)
         run_dir = train(args.task, args.algo, args.out, config=args.config, timesteps=args.timesteps,
                         seed=args.seed, n_envs=args.n_envs, resume=args.resume, progress=not args.no_progress,
-                        argv=argv, torch_threads=args.torch_threads, vec_env=args.vec_env)
+                        argv=argv, torch_threads=args.torch_threads, vec_env=args.vec_env,
+                        track=args.track)
     except (ConfigError, RunDirError) as exc:
         print(f"vswrist train: error: {exc}", file=sys.stderr)
         return 2
