@@ -18,6 +18,7 @@ COMMANDS = {
     "train": ("vswrist_gym.agents.train:main", "train a PPO or SAC policy"),
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
+    "sweep": ("vswrist_gym.sweep.cli:main", "run a sweep file (grid or hyperparameter search) on Ray"),
 }
 
 
