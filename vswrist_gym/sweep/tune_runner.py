@@ -44,9 +44,11 @@ def _progress_callback(total: int, finished_before: int, log):
         """One line per trial event, with the counts of trials done / running / failed."""
 
         def _say(self, trials, trial, what):
-            done = finished_before + sum(t.status == "TERMINATED" for t in trials)
-            running = sum(t.status == "RUNNING" for t in trials)
-            failed = sum(t.status == "ERROR" for t in trials)
+            # the callback runs before Tune updates `trial`'s own status: count it by the event
+            others = [t for t in trials if t is not trial]
+            done = finished_before + sum(t.status == "TERMINATED" for t in others) + (what == "finished")
+            running = sum(t.status == "RUNNING" for t in others) + (what == "started" or what.startswith("lost"))
+            failed = sum(t.status == "ERROR" for t in others) + (what == "FAILED")
             log(f"[sweep {time.strftime('%H:%M:%S')}] {_name(trial)} {what}: {done}/{total} done, {running} running, "
                 f"{failed} failed")
 
