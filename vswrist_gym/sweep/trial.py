@@ -99,6 +99,7 @@ def run_trial(trial: dict, log=print) -> dict:
     atomic_write_text(trial_dir / TRACE_FILE, json.dumps(json_safe(trace)))
     result = {"trial": trial["name"], "kind": trial["kind"], "agent": label, "training": training,
               "seconds": round(time.time() - start, 1), "host": socket.gethostname(), "pid": os.getpid(),
+              "node": trial.get("node"),
               "finished": time.time(), "return": summary["return"]["mean"]}
     atomic_write_text(trial_dir / RESULT_FILE, json.dumps(json_safe(result), indent=2))  # last: the trial is done
     return result

@@ -77,7 +77,10 @@ def _grid_trainable(config):
 
     from vswrist_gym.sweep.trial import run_trial
 
-    result = run_trial(config["trial"], log=lambda msg: print(msg, flush=True))
+    import ray
+
+    trial = {**config["trial"], "node": ray.get_runtime_context().get_node_id()}  # recorded: where it ran
+    result = run_trial(trial, log=lambda msg: print(msg, flush=True))
     tune.report({"return": result.get("return"), "skipped": bool(result.get("skipped"))})
 
 
