@@ -185,3 +185,32 @@ def test_driver_killed_mid_sweep_resume_skips_finished_trials(cluster, tmp_path)
             assert [h["status"] for h in history].count("finished") == 1, t["name"]
     out = episodes(tmp_path / "out" / "LoadHold" / "eval" / "ppo" / "metrics.json")
     assert sorted((e["seed"], e["episode"]) for e in out) == [(0, 0), (1, 0), (2, 0)]
+
+
+def test_search_writes_a_best_entry_that_train_reads_without_touching_evaluation_seeds(tmp_path):
+    """A tiny Optuna search (Ray embedded, no address): the best sample's learning rate, inside its range, lands
+    in a hyperparameter file that `hparams.load_config` (what `vswrist train --config` uses) reads; no protocol
+    evaluation (metrics.json) is run anywhere."""
+    from vswrist_gym.agents import hparams
+
+    best = tmp_path / "best_ppo.yaml"
+    doc = {"mode": "search", "tasks": ["LoadHold"], "algos": ["ppo"], "seeds": [100], "stiffness": [],
+           "timesteps": {"ppo": 2048},
+           "overrides": {"ppo": {"eval_freq": 512, "checkpoint_freq": 1024, "n_eval_episodes": 1}},
+           "runs_dir": str(tmp_path / "runs"),
+           "search": {"samples": 3, "grace_steps": 1024, "seed": 1, "best_out": str(best),
+                      "space": {"ppo": {"learning_rate": {"loguniform": [1.0e-4, 1.0e-3]},
+                                        "policy_kwargs.log_std_init": {"uniform": [-2.0, -1.0]}}}}}
+    path = tmp_path / "search.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    log = tmp_path / "search.log"
+    text = finish(subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", "sweep", str(path)],
+                                   stdout=open(log, "w"), stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path), log)
+    assert "best eval_return" in text
+    cfg = hparams.load_config("ppo", "VSWrist/LoadHold-v0", best)
+    lr = cfg.algo_kwargs["learning_rate"]
+    assert 1.0e-4 <= lr <= 1.0e-3 and -2.0 <= cfg.policy_kwargs["log_std_init"] <= -1.0
+    assert cfg.n_timesteps == 2048
+    marker = json.loads((tmp_path / "runs" / "LoadHold" / "search_LoadHold_ppo.done.json").read_text())
+    assert marker["config"]["learning_rate"] == lr
+    assert not list((tmp_path / "runs").rglob("metrics.json"))

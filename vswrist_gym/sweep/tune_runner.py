@@ -29,8 +29,9 @@ def init_ray(address: str | None, log=print) -> dict:
     if address:
         ray.init(address=address, log_to_driver=False, configure_logging=False)
     else:
-        ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False, configure_logging=False,
-                 _node_ip_address="127.0.0.1")
+        # address="local": a new instance even when another Ray cluster runs on this machine
+        ray.init(address="local", num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False,
+                 configure_logging=False, _node_ip_address="127.0.0.1")
     res = ray.cluster_resources()
     log(f"Ray {ray.__version__}: {int(res.get('CPU', 0))} CPUs on {len(ray.nodes())} node(s)"
         + (f" at {address}" if address else " (embedded, this machine)"))
