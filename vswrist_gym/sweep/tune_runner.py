@@ -70,7 +70,11 @@ def _progress_callback(total: int, finished_before: int, log):
 
 def _name(trial) -> str:
     cfg = trial.config
-    return cfg["trial"]["name"] if "trial" in cfg else trial.trial_id
+    if "trial" in cfg:
+        return cfg["trial"]["name"]
+    sample = ", ".join(f"{k.replace('__', '.')}={v:.4g}" if isinstance(v, float) else f"{k.replace('__', '.')}={v}"
+                       for k, v in cfg.items())
+    return f"sample {trial.trial_id} ({sample})"
 
 
 def _grid_trainable(config):
