@@ -22,10 +22,7 @@ pytestmark = pytest.mark.ray
 ray = pytest.importorskip("ray")
 
 ROOT = Path(__file__).resolve().parents[1]
-# RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0: a driver given 127.0.0.1 keeps it (Ray otherwise swaps in this machine's
-# network address, where a loopback-only cluster does not listen)
-ENV = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONWARNINGS": "ignore::DeprecationWarning",
-       "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONWARNINGS": "ignore::DeprecationWarning"}
 
 
 @pytest.fixture

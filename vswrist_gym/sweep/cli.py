@@ -79,6 +79,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.max_concurrent is not None and args.max_concurrent <= 0:
             raise ConfigError(f"--max-concurrent must be a positive integer, got {args.max_concurrent}")
         sweep = load_sweep(args.sweep)
+        if args.address and args.address.rsplit(":", 1)[0] in ("127.0.0.1", "localhost"):
+            # Ray replaces a loopback address by this machine's network address, where a cluster started on
+            # 127.0.0.1 does not listen; this keeps the driver on loopback (read when ray is imported)
+            os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
         if not ray_available():
             print(f"vswrist sweep: error: {RAY_INSTALL_HINT}", file=sys.stderr)
             return 2

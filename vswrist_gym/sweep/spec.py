@@ -37,7 +37,7 @@ from pathlib import Path
 
 import yaml
 
-from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config, load_file, resolve_entry
+from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config, resolve_entry
 
 
 class SweepError(ConfigError):
