@@ -1,7 +1,7 @@
 """Sweep speed-up: a grid of 8 short trials run one after another in this process, then as a `vswrist sweep` on
 Ray embedded on this machine; prints both wall times and their ratio (not a test: it measures the machine).
 
-    python -m vswrist_gym.sweep.bench [--steps 4096] [--out runs/sweep_bench]
+    python -m vswrist_gym.sweep.bench [--steps 16384] [--out runs/sweep_bench]
 
 The trials are PPO on LoadHold, 8 seeds, one environment each (`n_envs: 1`, `vec_env: dummy`: one CPU per trial,
 so a 2-core machine runs two at a time), followed by the evaluation protocol (2 episodes). The Ray time includes
@@ -32,7 +32,7 @@ def sweep_doc(out: Path, label: str, steps: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m vswrist_gym.sweep.bench", description=__doc__.split("\n\n")[0])
-    p.add_argument("--steps", type=int, default=4096, help="PPO steps per trial (default 4096)")
+    p.add_argument("--steps", type=int, default=16384, help="PPO steps per trial (default 16384)")
     p.add_argument("--out", default="runs/sweep_bench", help="scratch folder (emptied first)")
     args = p.parse_args(argv)
     out = Path(args.out).resolve()

@@ -118,7 +118,9 @@ def run_grid(sweep, trials: list[dict], address: str | None, max_concurrent: int
     storage = (Path(sweep.runs_dir) / "tune").resolve()
     tuner = tune.Tuner(
         trainable, param_space={"trial": tune.grid_search(pending)},
-        tune_config=tune.TuneConfig(max_concurrent_trials=max_concurrent,
+        # reuse_actors: a worker process that finished a trial takes the next one of the same size, so that only
+        # the first trial of each pays for importing torch, stable-baselines3 and MuJoCo (seconds per trial)
+        tune_config=tune.TuneConfig(max_concurrent_trials=max_concurrent, reuse_actors=True,
                                     trial_dirname_creator=lambda tr: tr.config["trial"]["name"].replace("/", "_")),
         run_config=tune.RunConfig(name=f"grid_{time.strftime('%Y%m%d_%H%M%S')}", storage_path=str(storage),
                                   failure_config=tune.FailureConfig(max_failures=sweep.max_failures),
