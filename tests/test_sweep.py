@@ -142,3 +142,12 @@ def test_a_second_sweep_in_the_same_runs_dir_is_refused(tmp_path):
         check_state(sw, resume=False)
     with pytest.raises(SweepError, match="changed"):
         check_state(sw, resume=True)
+
+
+def test_an_override_never_replaces_a_whole_value_by_some_of_its_fields():
+    from vswrist_gym.sweep.spec import deep_merge
+
+    base = {"policy_kwargs": "dict(net_arch=[64, 64], log_std_init=-1.5)", "env_kwargs": {"a": 1, "b": {"c": 2}}}
+    assert deep_merge(base, {"env_kwargs": {"b": {"c": 3}}})["env_kwargs"] == {"a": 1, "b": {"c": 3}}
+    with pytest.raises(SweepError, match="policy_kwargs"):
+        deep_merge(base, {"policy_kwargs": {"log_std_init": -1.0}})

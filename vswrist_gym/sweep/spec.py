@@ -74,11 +74,19 @@ def _per_algo(doc: dict, key: str, algos: list[str]) -> dict:
     return value
 
 
-def deep_merge(base: dict, changes: dict) -> dict:
-    """`base` with `changes` merged in, mappings key by key (an ablation changes one field of env_kwargs)."""
+def deep_merge(base: dict, changes: dict, where: str = "") -> dict:
+    """`base` with `changes` merged in, mappings key by key (an ablation changes one field of env_kwargs). A
+    mapping merged into a value that is not one (RL Zoo's "dict(...)" string of policy_kwargs) is refused rather
+    than allowed to replace the whole value."""
     out = copy.deepcopy(base)
     for k, v in changes.items():
-        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else copy.deepcopy(v)
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v, f"{where}{k}.")
+        elif isinstance(v, dict) and k in out and out[k] is not None:
+            raise SweepError(f"'{where}{k}' is {out[k]!r} in the hyperparameter file, not a mapping: give its whole "
+                             f"value instead of some of its fields")
+        else:
+            out[k] = copy.deepcopy(v)
     return out
 
 
@@ -279,7 +287,7 @@ def _load(path: Path) -> Sweep:
             file = Path.cwd() / file
         for env_id in env_ids:
             base = load_config(a, env_id, file).raw  # checks the file and that it has the task
-            entry = deep_merge(base, overrides.get(a, {}))
+            entry = deep_merge(base, overrides.get(a, {}), f"overrides.{a}.")
             try:
                 resolve_entry(a, env_id, entry, source=f"overrides.{a}")
             except ConfigError as exc:

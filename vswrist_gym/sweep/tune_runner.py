@@ -85,6 +85,8 @@ def _grid_trainable(config):
     import ray
 
     trial = {**config["trial"], "node": ray.get_runtime_context().get_node_id()}  # recorded: where it ran
+    # a batched vec env runs its worlds on this many threads: the CPUs Ray gave the trial, not the machine's
+    os.environ["VSWRIST_THREADS"] = str(trial["cpus"])
     result = run_trial(trial, log=lambda msg: print(msg, flush=True))
     tune.report({"return": result.get("return"), "skipped": bool(result.get("skipped"))})
 
