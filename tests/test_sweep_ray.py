@@ -197,7 +197,7 @@ def test_search_writes_a_best_entry_that_train_reads_without_touching_evaluation
            "runs_dir": str(tmp_path / "runs"),
            "search": {"samples": 3, "grace_steps": 1024, "seed": 1, "best_out": str(best),
                       "space": {"ppo": {"learning_rate": {"loguniform": [1.0e-4, 1.0e-3]},
-                                        "policy_kwargs.log_std_init": {"uniform": [-2.0, -1.0]}}}}}
+                                        "gae_lambda": {"uniform": [0.9, 0.99]}}}}}
     path = tmp_path / "search.yaml"
     path.write_text(yaml.safe_dump(doc))
     log = tmp_path / "search.log"
@@ -206,7 +206,7 @@ def test_search_writes_a_best_entry_that_train_reads_without_touching_evaluation
     assert "best eval_return" in text
     cfg = hparams.load_config("ppo", "VSWrist/LoadHold-v0", best)
     lr = cfg.algo_kwargs["learning_rate"]
-    assert 1.0e-4 <= lr <= 1.0e-3 and -2.0 <= cfg.policy_kwargs["log_std_init"] <= -1.0
+    assert 1.0e-4 <= lr <= 1.0e-3 and 0.9 <= cfg.algo_kwargs["gae_lambda"] <= 0.99
     assert cfg.n_timesteps == 2048
     marker = json.loads((tmp_path / "runs" / "LoadHold" / "search_LoadHold_ppo.done.json").read_text())
     assert marker["config"]["learning_rate"] == lr

@@ -21,7 +21,8 @@ the committed sweeps). Keys (every other key is an error that names it):
     search:                    (search only)
       samples: 16              hyperparameter samples (Tune trials) per task x algo
       space: {sac: {learning_rate: {loguniform: [1.0e-4, 1.0e-3]}, gamma: {choice: [0.9, 0.95, 0.99]}}}
-                               keys are entry keys (dotted for nested ones: policy_kwargs.log_std_init);
+                               keys are entry keys (dotted for fields of a mapping: env_kwargs.residual.x;
+                               a value written as RL Zoo's "dict(...)" string is searched whole, with choice);
                                distributions: uniform, loguniform, randint [low, high), choice
       grace_steps: 5000        training steps before a poor sample may be stopped (ASHA)
       seed: 0                  seed of the Optuna sampler
