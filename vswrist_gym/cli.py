@@ -21,6 +21,7 @@ COMMANDS = {
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
     "aggregate": ("vswrist_gym.agents.aggregate:main", "scores across tasks: IQM, probability of improvement"),
     "export": ("vswrist_gym.model.export:main", "write the wrist as a self-contained MJCF (MuJoCo plugin)"),
+    "sweep": ("vswrist_gym.sweep.cli:main", "run a sweep file (grid or hyperparameter search) on Ray"),
 }
 
 

@@ -266,6 +266,44 @@ def plot_traces(path: Path, traces: dict[str, dict], title: str, highlight: str 
     plt.close(fig)
 
 
+def write_outputs(out: Path, env_id: str, rows: dict, runs: dict, traces: dict, learned: list[str],
+                  baselines: list[str], seeds: list[int], episodes: int, stiffness, budget: dict, training: dict,
+                  t_train: float, t_total: float, load_start: float, command: str | None, trace_at,
+                  track: str | None = None) -> dict:
+    """Verdicts, table.md, summary.json, learning_curves.png and traces.png of one task's rows (per-agent
+    `summarise` results): what `vswrist compare` writes, and `vswrist sweep` for each task of its grid."""
+    verdict = verdicts(rows, learned, baselines)
+    table = table_markdown(list(rows.items()))
+    header = (f"{env_id}: means with 95 % confidence intervals over seeds {seeds} "
+              f"({episodes} evaluation episodes per seed); training steps per seed: "
+              + ", ".join(f"{a.upper()} {n}" for a, n in budget.items()))
+    baseline_line = None
+    if verdict:
+        best = verdict["best_baseline"]
+        baseline_line = (best, rows[best]["return"]["mean"])
+    plot_learning_curves(out / "learning_curves.png", runs, baseline_line, f"{env_id}: periodic evaluation")
+    plot_traces(out / "traces.png", traces, f"{env_id}: evaluation episode (seed {trace_at[0]}, episode 0)",
+                highlight=verdict.get("best_baseline"))
+    doc = {"task": env_id, "track": track, "seeds": seeds, "episodes_per_seed": episodes,
+           "stiffness_levels": list(stiffness), "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
+           "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
+           "load_average_1min": {"start": round(load_start, 2), "end": round(os.getloadavg()[0], 2)},
+           "command": command, "traces": traces}
+    (out / "summary.json").write_text(json.dumps(json_safe(doc), indent=2))
+    md = [f"# {header}", "", table, ""]
+    md += [f"- {k}: {v}" for k, v in verdict.items()]
+    md += [f"- {name}: {what}" for name, what in training.items() if what.startswith("FAILED")]
+    md += ["", f"Wall time {t_total:.0f} s (training {t_train:.0f} s) on {os.cpu_count()} cores, 1-min load average "
+           f"{load_start:.1f} at start and {os.getloadavg()[0]:.1f} at end; "
+           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; versions: "
+           + ", ".join(f"{k} {v}" for k, v in versions().items() if k != "platform")]
+    if command is not None:
+        md += ["", f"Command: `{command}`"]
+    (out / "table.md").write_text("\n".join(md) + "\n")
+    doc["table"], doc["header"], doc["out"] = table, header, out
+    return doc
+
+
 def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, stiffness=DEFAULT_STIFFNESS_LEVELS,
             out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
             n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
@@ -356,44 +394,14 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
             write_metrics(folder, head, records, rows[spec.label])
             log(f"evaluated {spec.label}: return {rows[spec.label]['return']['mean']:.4g}")
     t_total = time.time() - t0
-
-    learned = [a.upper() for a in algos]
-    verdict = verdicts(rows, learned, baselines)
-    table = table_markdown(list(rows.items()))
     budget = {a: (timesteps.get(a) or load_config(a, env_id, configs.get(a)).n_timesteps) for a in algos}
-    header = (f"{env_id}: means with 95 % confidence intervals over seeds {seeds} "
-              f"({episodes} evaluation episodes per seed); training steps per seed: "
-              + ", ".join(f"{a.upper()} {n}" for a, n in budget.items()))
-    baseline_line = None
-    if verdict:
-        best = verdict["best_baseline"]
-        baseline_line = (best, rows[best]["return"]["mean"])
-    plot_learning_curves(out / "learning_curves.png", runs, baseline_line, f"{env_id}: periodic evaluation")
-    plot_traces(out / "traces.png", traces, f"{env_id}: evaluation episode (seed {trace_at[0]}, episode 0)",
-                highlight=verdict.get("best_baseline"))
-    footprint = {a.upper(): sum(folder_bytes(d) for d in runs[a]) for a in algos}
+    command = "vswrist compare " + shlex.join(argv) if argv is not None else None
     # the track the learned runs trained on (from their own configs, so loaded runs count as they are)
-    run_tracks = sorted({track_of(json.loads(k)) for k in env_kwargs_seen})
-    doc = {"task": env_id, "track": "/".join(run_tracks) or None, "seeds": seeds, "episodes_per_seed": episodes,
-           "stiffness_levels": list(stiffness),
-           "timesteps": budget, "training": training, "verdicts": verdict, "rows": rows,
-           "seconds": {"training": round(t_train, 1), "total": round(t_total, 1)}, "versions": versions(),
-           "load_average_1min": {"start": round(load_start, 2), "end": round(os.getloadavg()[0], 2)},
-           "command": "vswrist compare " + shlex.join(argv) if argv is not None else None, "traces": traces}
-    (out / "summary.json").write_text(json.dumps(json_safe(doc), indent=2))
-    md = [f"# {header}", "", table, ""]
-    md += [f"- {k}: {v}" for k, v in verdict.items()]
-    md += [f"- {name}: {what}" for name, what in training.items() if what.startswith("FAILED")]
-    md += ["", f"Wall time {t_total:.0f} s (training {t_train:.0f} s) on {os.cpu_count()} cores, 1-min load average "
-           f"{load_start:.1f} at start and {os.getloadavg()[0]:.1f} at end; "
-           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; versions: "
-           + ", ".join(f"{k} {v}" for k, v in versions().items() if k != "platform")]
-    if argv is not None:
-        md += ["", f"Command: `vswrist compare {shlex.join(argv)}`"]
-    (out / "table.md").write_text("\n".join(md) + "\n")
-    doc["table"], doc["header"], doc["out"] = table, header, out
-    doc["footprint"] = {"run_bytes": footprint, "runs_dir": str(Path(runs_dir) if runs_dir else out / "runs"),
-                        "out_bytes": folder_bytes(out)}
+    run_track = "/".join(sorted({track_of(json.loads(k)) for k in env_kwargs_seen})) or None
+    doc = write_outputs(out, env_id, rows, runs, traces, [a.upper() for a in algos], baselines, seeds, episodes,
+                        stiffness, budget, training, t_train, t_total, load_start, command, trace_at, track=run_track)
+    doc["footprint"] = {"run_bytes": {a.upper(): sum(folder_bytes(d) for d in runs[a]) for a in algos},
+                        "runs_dir": str(Path(runs_dir) if runs_dir else out / "runs"), "out_bytes": folder_bytes(out)}
     return doc
 
 

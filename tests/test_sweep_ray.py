@@ -1,0 +1,213 @@
+"""`vswrist sweep` on a two-node Ray cluster on this machine (loopback only): the trials' metrics equal serial
+`vswrist train` + `vswrist evaluate` runs, a worker node killed mid-trial and a driver killed mid-sweep lose and
+duplicate nothing. Needs the [sweep] extra; not in the default suite (several minutes):
+
+    python3 -m pytest -m ray tests/test_sweep_ray.py
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+pytestmark = pytest.mark.ray
+ray = pytest.importorskip("ray")
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONWARNINGS": "ignore::DeprecationWarning"}
+
+
+@pytest.fixture
+def cluster():
+    """A head node and one worker node, both on 127.0.0.1; the test adds and removes nodes as it needs."""
+    from ray.cluster_utils import Cluster
+
+    made = []
+
+    def make(head_cpus: int, worker_cpus: int):
+        c = Cluster(initialize_head=True, head_node_args={"num_cpus": head_cpus, "node_ip_address": "127.0.0.1",
+                                                          "include_dashboard": False})
+        worker = c.add_node(num_cpus=worker_cpus, node_ip_address="127.0.0.1")
+        made.append(c)
+        return c, worker
+
+    yield make
+    for c in made:
+        c.shutdown()
+
+
+def write_sweep(folder: Path, **fields) -> Path:
+    doc = {"mode": "grid", "tasks": ["LoadHold"], "algos": ["ppo"], "seeds": [0, 1], "episodes": 2,
+           "stiffness": [0.0], "timesteps": {"ppo": 1024},
+           "overrides": {"ppo": {"eval_freq": 512, "checkpoint_freq": 512, "n_eval_episodes": 1}},
+           "out": str(folder / "out"), "runs_dir": str(folder / "runs"), **fields}
+    path = folder / "sweep.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def start_sweep(path: Path, address: str, *extra, log: Path) -> subprocess.Popen:
+    fh = open(log, "a")
+    return subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", "sweep", str(path), "--address", address,
+                             *extra], stdout=fh, stderr=subprocess.STDOUT, env=ENV, cwd=path.parent)
+
+
+def finish(proc: subprocess.Popen, log: Path, timeout: float = 900) -> str:
+    proc.wait(timeout=timeout)
+    text = log.read_text()
+    assert proc.returncode == 0, text[-3000:]
+    return text
+
+
+def cli(*args, cwd) -> None:
+    res = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", *map(str, args)], capture_output=True, text=True,
+                         env=ENV, cwd=cwd, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+
+
+def episodes(path: Path) -> list[dict]:
+    doc = json.loads(path.read_text())
+    return [{k: v for k, v in e.items() if k != "agent"} for e in doc["episodes"]]
+
+
+def trials_of(path: Path) -> list[dict]:
+    from vswrist_gym.sweep.spec import load_sweep
+
+    return load_sweep(path).trials()
+
+
+def wait_for(condition, timeout: float, what: str):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        got = condition()
+        if got:
+            return got
+        time.sleep(0.5)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_two_node_sweep_equals_serial_train_and_evaluate(cluster, tmp_path):
+    """2 tasks x 2 seeds (+ the analytic baseline): every trial's per-episode metrics equal, to the last bit,
+    those of `vswrist train` and `vswrist evaluate` run one after another with the same seeds and budget."""
+    c, _ = cluster(2, 2)
+    path = write_sweep(tmp_path, tasks=["LoadHold", "Polish"])
+    text = finish(start_sweep(path, c.address, log=tmp_path / "sweep.log"), tmp_path / "sweep.log")
+    assert "2 node(s)" in text and "6/6 trials done" in text
+    trials = trials_of(path)
+    nodes = {json.loads((Path(t["trial_dir"]) / "result.json").read_text())["node"] for t in trials}
+    assert len(nodes) == 2, "the trials ran on both nodes"
+    serial = tmp_path / "serial"
+    config = tmp_path / "runs" / "configs" / "ppo.yaml"  # the sweep's entries (its overrides merged in)
+    for t in trials:
+        ev = serial / t["name"] / "eval"
+        if t["kind"] == "learned":
+            run = serial / t["name"] / "run"
+            cli("train", "--task", t["task"], "--algo", "ppo", "--seed", t["seed"], "--timesteps", 1024,
+                "--config", config, "--out", run, "--no-progress", cwd=tmp_path)
+            agent = run
+        else:
+            agent = f"analytic:{t['stiffness']}"
+        cli("evaluate", "--task", t["task"], "--agent", agent, "--episodes", 2, "--seeds", *t["eval_seeds"],
+            "--out", ev, cwd=tmp_path)
+        assert episodes(Path(t["trial_dir"]) / "metrics.json") == episodes(ev / "metrics.json"), t["name"]
+    for task in ("LoadHold", "Polish"):  # the grid's tables, as vswrist compare writes them
+        summary = json.loads((tmp_path / "out" / task / "summary.json").read_text())
+        assert set(summary["rows"]) == {"PPO", "analytic:+0.00"}
+        assert (tmp_path / "out" / task / "learning_curves.png").is_file()
+
+
+def test_worker_node_killed_mid_trial_resumes_from_its_checkpoint(cluster, tmp_path):
+    """The only node with CPUs dies while the trial trains; a new node joins: the trial is retried there, resumes
+    from its last checkpoint, and finishes once, with its budget and its evaluation episodes once each."""
+    c, worker = cluster(0, 2)
+    budget = 6144
+    path = write_sweep(tmp_path, seeds=[0], stiffness=[], timesteps={"ppo": budget},
+                       overrides={"ppo": {"eval_freq": 2048, "checkpoint_freq": 1024, "n_eval_episodes": 1}})
+    (trial,) = trials_of(path)
+    run_dir = Path(trial["run_dir"])
+    log = tmp_path / "sweep.log"
+    proc = start_sweep(path, c.address, log=log)
+    wait_for(lambda: (run_dir / "checkpoints" / "latest.json").is_file(), 600, "a first checkpoint")
+    c.add_node(num_cpus=2, node_ip_address="127.0.0.1")
+    c.remove_node(worker, allow_graceful=False)
+    text = finish(proc, log)
+    assert "retried from its last checkpoint" in text and "1/1 trials done" in text
+    history = json.loads((run_dir / "run.json").read_text())["history"]
+    statuses = [h["status"] for h in history]
+    assert statuses.count("finished") == 1 and statuses[-1] == "finished", statuses
+    assert "killed" in statuses, statuses  # the cut-off attempt was seen and recorded
+    resumed_from = [h for h in history if h["status"] == "killed"][0]["checkpoint_step"]
+    assert 0 < resumed_from < budget
+    assert json.loads((run_dir / "run.json").read_text())["num_timesteps"] == budget  # no step counted twice
+    eps = episodes(Path(trial["trial_dir"]) / "metrics.json")
+    assert [(e["seed"], e["episode"]) for e in eps] == [(0, 0), (0, 1)]
+    out = episodes(tmp_path / "out" / "LoadHold" / "eval" / "ppo" / "metrics.json")
+    assert [(e["seed"], e["episode"]) for e in out] == [(0, 0), (0, 1)]
+
+
+def test_driver_killed_mid_sweep_resume_skips_finished_trials(cluster, tmp_path):
+    c, _ = cluster(2, 2)
+    path = write_sweep(tmp_path, seeds=[0, 1, 2], episodes=1, stiffness=[0.0, 0.5], timesteps={"ppo": 2048})
+    trials = trials_of(path)
+    learned = [t for t in trials if t["kind"] == "learned"]
+    log = tmp_path / "sweep.log"
+    proc = start_sweep(path, c.address, log=log)
+
+    def some_learned_done():
+        done = [t for t in learned if (Path(t["trial_dir"]) / "result.json").is_file()]
+        return done if done and len(done) < len(learned) else None
+
+    wait_for(some_learned_done, 600, "a finished learned trial")
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = {t["name"]: (Path(t["trial_dir"]) / "result.json").read_bytes() for t in trials
+              if (Path(t["trial_dir"]) / "result.json").is_file()}
+    assert 0 < len(before) < len(trials)
+    text = finish(start_sweep(path, c.address, "--resume", log=tmp_path / "resume.log"), tmp_path / "resume.log")
+    assert f"{len(before)} of {len(trials)} trials already have a record: not rerun" in text
+    for t in trials:
+        record = (Path(t["trial_dir"]) / "result.json").read_bytes()
+        if t["name"] in before:
+            assert record == before[t["name"]], f"{t['name']} was rerun"
+        if t["kind"] == "learned":
+            history = json.loads((Path(t["run_dir"]) / "run.json").read_text())["history"]
+            assert [h["status"] for h in history].count("finished") == 1, t["name"]
+    out = episodes(tmp_path / "out" / "LoadHold" / "eval" / "ppo" / "metrics.json")
+    assert sorted((e["seed"], e["episode"]) for e in out) == [(0, 0), (1, 0), (2, 0)]
+
+
+def test_search_writes_a_best_entry_that_train_reads_without_touching_evaluation_seeds(tmp_path):
+    """A tiny Optuna search (Ray embedded, no address): the best sample's learning rate, inside its range, lands
+    in a hyperparameter file that `hparams.load_config` (what `vswrist train --config` uses) reads; no protocol
+    evaluation (metrics.json) is run anywhere."""
+    from vswrist_gym.agents import hparams
+
+    best = tmp_path / "best_ppo.yaml"
+    doc = {"mode": "search", "tasks": ["LoadHold"], "algos": ["ppo"], "seeds": [100], "stiffness": [],
+           "timesteps": {"ppo": 2048},
+           "overrides": {"ppo": {"eval_freq": 512, "checkpoint_freq": 1024, "n_eval_episodes": 1}},
+           "runs_dir": str(tmp_path / "runs"),
+           "search": {"samples": 3, "grace_steps": 1024, "seed": 1, "best_out": str(best),
+                      "space": {"ppo": {"learning_rate": {"loguniform": [1.0e-4, 1.0e-3]},
+                                        "gae_lambda": {"uniform": [0.9, 0.99]}}}}}
+    path = tmp_path / "search.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    log = tmp_path / "search.log"
+    text = finish(subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", "sweep", str(path)],
+                                   stdout=open(log, "w"), stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path), log)
+    assert "best eval_return" in text
+    cfg = hparams.load_config("ppo", "VSWrist/LoadHold-v0", best)
+    lr = cfg.algo_kwargs["learning_rate"]
+    assert 1.0e-4 <= lr <= 1.0e-3 and 0.9 <= cfg.algo_kwargs["gae_lambda"] <= 0.99
+    assert cfg.n_timesteps == 2048
+    marker = json.loads((tmp_path / "runs" / "LoadHold" / "search_LoadHold_ppo.done.json").read_text())
+    assert marker["config"]["learning_rate"] == lr
+    assert not list((tmp_path / "runs").rglob("metrics.json"))
