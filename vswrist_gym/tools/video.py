@@ -55,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
     ap.add_argument("--agent", default="reference",
-                    help="reference | adaptive | random | analytic[:S] | RUN_DIR | RL Zoo folder | model file in one")
+                    help="reference | adaptive | random | analytic[:S] | pretrained:TASK[:TRACK] | RUN_DIR | "
+                         "RL Zoo folder | model file in one")
     ap.add_argument("--algo", choices=("ppo", "sac"), help="check that a trained agent is of this algorithm")
     ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
                     help="which model of a run directory (as in vswrist evaluate)")

@@ -158,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist view", description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
     ap.add_argument("--agent", default="analytic",
-                    help="analytic | analytic:STIFFNESS | RUN_DIR | RL Zoo folder (default: analytic)")
+                    help="analytic | analytic:STIFFNESS | pretrained:TASK[:TRACK] | RUN_DIR | RL Zoo folder "
+                         "(default: analytic)")
     ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
                     help="which model of a run directory")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first episode (the next ones count up)")
