@@ -201,3 +201,56 @@ def test_replay_every_seed_gives_the_card(key):
                                rtol=card["replay"]["cross_machine_tolerance"]["relative_floor"],
                                atol=card["replay"]["cross_machine_tolerance"]["margin"]
                                * card["replay"]["max_return_change"])
+
+
+# ------------------------------------------------------------------------------------------------ video and view
+
+
+def _cross_tolerance(card, ret):
+    rp = card["replay"]["cross_machine_tolerance"]
+    return max(rp["margin"] * card["replay"]["max_return_change"], rp["relative_floor"] * abs(ret))
+
+
+def test_video_and_view_drive_the_shipped_policy(tmp_path):
+    """`vswrist video` and `vswrist view` run the policy one env at a time (the card's episodes ran as worlds of a
+    batch, whose forward pass may round the last bits differently), on the card's first episode: its return
+    within the cross-machine bound."""
+    import re
+
+    import gymnasium as gym
+
+    from vswrist_gym.agents.evaluate import AgentSpec
+    from vswrist_gym.tools.view import ViewerSession
+
+    key = next(iter(SHIPPED))
+    card = card_of(SHIPPED[key])
+    first = card["evaluation"]["episodes"][0]
+    reset = 1_000_000 + 1000 * first["seed"] + first["episode"]
+    agent_text = f"pretrained:{key[0]}"
+    out = tmp_path / "ep.mp4"
+    p = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "video", "--task", card["env_id"], "--agent",
+                        agent_text, "--seed", str(reset), "--width", "64", "--height", "48", "--out", str(out)],
+                       capture_output=True, text=True, cwd=REPO)
+    assert p.returncode == 0, p.stderr
+    got = float(re.search(r"return (-?[\d.]+)", p.stdout)[1])
+    assert abs(got - first["return"]) <= _cross_tolerance(card, first["return"]) + 0.005  # printed to 2 decimals
+
+    spec = AgentSpec(agent_text)
+    env = gym.make(card["env_id"], **spec.env_kwargs)
+    lines = []
+    session = ViewerSession(env, spec.make(env), seed=reset, speed=1e9, log=lines.append)
+
+    class Handle:  # stands in for the viewer window: closes once the first episode has ended
+        def is_running(self):
+            return session.episodes == 0
+
+        def sync(self):
+            pass
+
+        def close(self):
+            pass
+
+    session.run(lambda *a, **k: Handle())
+    env.close()
+    got = float(re.search(r"return (-?[\d.]+)", lines[0])[1])
+    assert abs(got - first["return"]) <= _cross_tolerance(card, first["return"]) + 0.005

@@ -113,6 +113,7 @@ def train_all(items, work: Path, timesteps: int | None, jobs: int, log=print) ->
             run.parent.mkdir(parents=True, exist_ok=True)
             logf = open(run.parent / f"{run.name}.log", "w")  # noqa: SIM115 - closed with the process
             log(f"training: vswrist {shlex.join(args)}")
+            (run.parent / f"{run.name}.git.json").write_text(json.dumps(git_commit()))
             proc = subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", *args], stdout=logf,
                                     stderr=subprocess.STDOUT)
             running.append((run, proc, time.monotonic()))
@@ -223,16 +224,16 @@ def write_card(task: str, track: str, run: Path, folder: Path, result: dict) -> 
 
     cfg, seed = read_config(run)
     run_doc = json.loads((run / "run.json").read_text())
+    git_file = run.parent / f"{run.name}.git.json"  # the code the run was trained with, saved at its start
+    git = json.loads(git_file.read_text()) if git_file.is_file() else {**git_commit(), "note": "at shipping time"}
     commands = run_doc.get("commands") or []
     card = {
         "task": task, "env_id": cfg.env_id, "track": track, "algo": cfg.algo, "training_seed": seed,
         "budget_steps": int(cfg.n_timesteps), "steps_trained": run_doc.get("num_timesteps"),
         "training_time_s": run_doc.get("train_seconds"),
         "training_command": commands[0] if commands else None,
-        "hyperparameters": f"vswrist_gym/configs/ppo.yaml entry {cfg.env_id}" + (
-            "" if track != "stiffness" or cfg.env_kwargs.get("residual", {}).get("posture_scale") == 0.0 else
-            " on the stiffness track"),
-        "env_kwargs": cfg.env_kwargs, "git": git_commit(),
+        "hyperparameters": f"the vswrist_gym/configs/ppo.yaml entry {cfg.env_id}, --track {track}",
+        "env_kwargs": cfg.env_kwargs, "git": git,
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "host": {"machine": machine(), "cpu_count": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
                  "note": "dev machine, 2 cores, shared with other sessions (contended)"},

@@ -3,6 +3,7 @@
     vswrist view --task Polish                              # the analytic baseline, stiffness command 0
     vswrist view --task Polish --agent analytic:1           # the baseline, stiff
     vswrist view --task Polish --agent runs/polish_ppo_0    # a trained run (vswrist train or an RL Zoo folder)
+    vswrist view --task Polish --agent pretrained:Polish    # the policy shipped for Polish
 
 The episode runs in real time (``--speed`` scales it); when it ends the next one starts (seed + 1). Keys:
 space pauses and resumes, the right arrow advances one control step while paused, backspace restarts the
