@@ -139,7 +139,8 @@ def ship_run(run: Path, dest: Path) -> None:
     dest.mkdir(parents=True)
     for name in pretrained.RUN_FILES:
         if (run / name).is_file():
-            shutil.copy2(run / name, dest / name)
+            shutil.copyfile(run / name, dest / name)  # package data: readable by all, not the run's 0600
+            os.chmod(dest / name, 0o644)
 
 
 class PerturbedAgent:
@@ -236,7 +237,7 @@ def write_card(task: str, track: str, run: Path, folder: Path, result: dict) -> 
         "env_kwargs": cfg.env_kwargs, "git": git,
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "host": {"machine": machine(), "cpu_count": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
-                 "note": "dev machine, 2 cores, shared with other sessions (contended)"},
+                 "note": "dev machine shared with other sessions (contended)"},
         "versions": run_doc.get("versions"),
         **{k: v for k, v in result.items() if k in ("evaluation", "replay")},
         "regenerate": "python -m vswrist_gym.tools.ship_policies",
@@ -246,6 +247,8 @@ def write_card(task: str, track: str, run: Path, folder: Path, result: dict) -> 
 
     atomic_write_text(folder / pretrained.CARD_FILE, json.dumps(json_safe(card), indent=2) + "\n")
     atomic_write_text(folder / "CARD.md", card_markdown(card))
+    for name in pretrained.CARD_FILES:
+        os.chmod(folder / name, 0o644)
     return card
 
 
