@@ -222,7 +222,8 @@ def test_video_and_view_drive_the_shipped_policy(tmp_path):
     from vswrist_gym.agents.evaluate import AgentSpec
     from vswrist_gym.tools.view import ViewerSession
 
-    key = next(iter(SHIPPED))
+    # Hammer's episodes are the shortest (60 steps): the cheapest video
+    key = ("Hammer", "stiffness") if ("Hammer", "stiffness") in SHIPPED else next(iter(SHIPPED))
     card = card_of(SHIPPED[key])
     first = card["evaluation"]["episodes"][0]
     reset = 1_000_000 + 1000 * first["seed"] + first["episode"]
