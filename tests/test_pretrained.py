@@ -255,3 +255,27 @@ def test_video_and_view_drive_the_shipped_policy(tmp_path):
     env.close()
     got = float(re.search(r"return (-?[\d.]+)", lines[0])[1])
     assert abs(got - first["return"]) <= _cross_tolerance(card, first["return"]) + 0.005
+
+
+def test_replay_check_catches_wrong_statistics(tmp_path):
+    """The comparison can fail: the same policy with its observation statistics shifted by one standard deviation
+    (what a wrong or mixed-up vecnormalize.npz does) moves returns beyond even the cross-machine bound."""
+    import shutil
+
+    from vswrist_gym.agents.protocol import evaluate
+    from vswrist_gym.agents.runs import TrainedAgent
+
+    key = ("Hammer", "stiffness") if ("Hammer", "stiffness") in SHIPPED else next(iter(SHIPPED))
+    folder = tmp_path / SHIPPED[key].name
+    shutil.copytree(SHIPPED[key], folder)
+    with np.load(folder / "vecnormalize.npz", allow_pickle=False) as a:
+        arrays = {k: a[k] for k in a.files}
+    arrays["obs_mean"] = arrays["obs_mean"] + np.sqrt(arrays["obs_var"])
+    np.savez(folder / "vecnormalize.npz", **arrays)
+    card = card_of(folder)
+    agent = TrainedAgent(folder)
+    records, _ = evaluate(card["env_id"], lambda env: agent, card["evaluation"]["seeds"][:1],
+                          card["evaluation"]["episodes_per_seed"], env_kwargs=dict(agent.cfg.env_kwargs))
+    card["replay"]["machine"] = "another machine"  # the looser, cross-machine bound
+    with pytest.raises(AssertionError, match="tol"):
+        check_replay(card, records)
