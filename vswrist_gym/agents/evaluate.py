@@ -27,13 +27,24 @@ EVAL_OUTPUT_NAMES = ("metrics.json", "metrics.csv", PARTIAL_FILE)
 
 class AgentSpec:
     """An agent named on the command line: 'analytic', 'analytic:STIFFNESS' (in [-1, 1]), a run directory, an RL
-    Zoo experiment folder, or a model file inside either (see runs.TrainedAgent)."""
+    Zoo experiment folder, a model file inside either (see runs.TrainedAgent), or a policy shipped in the package,
+    'pretrained:<Task>[:<track>]' (vswrist_gym.pretrained). `vswrist evaluate`, `video` and `view` all parse
+    --agent here."""
 
     def __init__(self, text: str, checkpoint: str = "final"):
         self.text = text
         self.trained: TrainedAgent | None = None
         self.stiffness: float | None = None
-        if text == "analytic" or text.startswith("analytic:"):
+        self.pretrained: Path | None = None
+        if text.startswith("pretrained:"):
+            from vswrist_gym import pretrained
+
+            self.kind = "trained"
+            self.pretrained = pretrained.resolve(text)
+            if checkpoint != "final":
+                raise ConfigError(f"--checkpoint {checkpoint}: a shipped policy ({text}) has its final model only")
+            self.trained = TrainedAgent(self.pretrained, checkpoint="final")
+        elif text == "analytic" or text.startswith("analytic:"):
             self.kind = "analytic"
             if ":" in text:
                 try:
@@ -51,6 +62,8 @@ class AgentSpec:
     def label(self) -> str:
         if self.kind == "analytic":
             return "analytic" if self.stiffness is None else f"analytic:{self.stiffness:+.2f}"
+        if self.pretrained is not None:
+            return f"{self.trained.cfg.algo}:{self.text}"
         return f"{self.trained.cfg.algo}:{Path(self.text).name}"
 
     @property
@@ -123,7 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
     p.add_argument("--agent", required=True,
                    help="RUN_DIR (from vswrist train), an RL Zoo experiment folder (logs/ppo/VSWrist-Polish-v0_1), "
-                        "a model file in either, 'analytic' or 'analytic:STIFFNESS'")
+                        "a model file in either, 'pretrained:TASK[:TRACK]' (a shipped policy), 'analytic' or "
+                        "'analytic:STIFFNESS'")
     p.add_argument("--episodes", type=int, default=5, help="episodes per seed (default 5)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (default 0-4)")
     p.add_argument("--out", required=True, help="output directory for metrics.json and metrics.csv")

@@ -7,6 +7,7 @@ Agents:
 * ``adaptive``: as ``reference``, but soft (-1) until the tool/hand feels a load, then stiff (+1);
 * ``random``: uniform random actions;
 * ``analytic`` or ``analytic:STIFFNESS``: the analytic baseline, as ``vswrist evaluate`` runs it;
+* ``pretrained:<Task>[:<track>]``: a policy shipped in the package (``vswrist_gym.pretrained``), as a trained run;
 * a trained run: a ``vswrist train`` run directory or an RL Zoo experiment folder (``logs/ppo/VSWrist-Polish-v0_1``),
   or a model file inside either: its deterministic policy with its own normalisation statistics, on the
   environment built with its own ``env_kwargs`` (action mode). A run from another task, a model file outside a run
@@ -55,7 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
     ap.add_argument("--agent", default="reference",
-                    help="reference | adaptive | random | analytic[:S] | RUN_DIR | RL Zoo folder | model file in one")
+                    help="reference | adaptive | random | analytic[:S] | pretrained:TASK[:TRACK] | RUN_DIR | "
+                         "RL Zoo folder | model file in one")
     ap.add_argument("--algo", choices=("ppo", "sac"), help="check that a trained agent is of this algorithm")
     ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
                     help="which model of a run directory (as in vswrist evaluate)")

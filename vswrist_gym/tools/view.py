@@ -3,6 +3,7 @@
     vswrist view --task Polish                              # the analytic baseline, stiffness command 0
     vswrist view --task Polish --agent analytic:1           # the baseline, stiff
     vswrist view --task Polish --agent runs/polish_ppo_0    # a trained run (vswrist train or an RL Zoo folder)
+    vswrist view --task Polish --agent pretrained:Polish    # the policy shipped for Polish
 
 The episode runs in real time (``--speed`` scales it); when it ends the next one starts (seed + 1). Keys:
 space pauses and resumes, the right arrow advances one control step while paused, backspace restarts the
@@ -158,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist view", description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
     ap.add_argument("--agent", default="analytic",
-                    help="analytic | analytic:STIFFNESS | RUN_DIR | RL Zoo folder (default: analytic)")
+                    help="analytic | analytic:STIFFNESS | pretrained:TASK[:TRACK] | RUN_DIR | RL Zoo folder "
+                         "(default: analytic)")
     ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
                     help="which model of a run directory")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first episode (the next ones count up)")
