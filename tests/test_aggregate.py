@@ -89,3 +89,17 @@ def test_bad_inputs_are_one_line_errors(tmp_path, capsys):
     assert err.count("\n") == 0 and "cannot read the headroom file" in err
     with pytest.raises(agg.AggregateError, match="LABEL=RESULTS_DIR:AGENT"):
         agg._parse_run("nolabel")
+
+
+def test_probe_headroom_json_feeds_aggregate(tmp_path, capsys):
+    """The probe's --headroom-json is what `vswrist aggregate --headroom` reads: every task written has a positive
+    gain, equal to the larger paired gain of the printed table."""
+    from vswrist_gym.tools import probe
+
+    out = tmp_path / "headroom.json"
+    assert probe.main(["--tasks", "Impact", "--episodes", "2", "--headroom", "--headroom-json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert "Impact" in doc["tasks"]  # its rule gains about +55 on held-out episodes (docs/environments.md)
+    for task, entry in doc["tasks"].items():
+        assert entry["headroom"] == max(entry["rule"][0], entry["schedule"][0]) > 0
+    assert agg.load_headroom(out) == {t: e["headroom"] for t, e in doc["tasks"].items()}

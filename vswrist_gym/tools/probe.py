@@ -284,6 +284,21 @@ def headroom_rows(results) -> list[str]:
     return rows
 
 
+def headroom_json(results, episodes: int, seed0: int) -> dict:
+    """The headroom table as `vswrist aggregate --headroom` reads it: per task, the larger of the rule's and the
+    schedule's paired gain over the best constant (the normalised score's 1); tasks where neither gains are left
+    out, since no score can be normalised against them."""
+    tasks = {}
+    for r in results:
+        (rm, rse, _), (om, ose, _) = r["paired"]["rule"], r["paired"]["oracle"]
+        gain = max(rm, om)
+        if gain > 0:
+            tasks[r["task"]] = {"headroom": float(gain), "best_constant": float(r["best_constant"]),
+                                "rule": [float(rm), float(rse)], "schedule": [float(om), float(ose)],
+                                "by": "rule" if rm >= om else ("optimised" if r["task"] == "Hammer" else "oracle")}
+    return {"episodes": episodes, "seed0": seed0, "tasks": tasks}
+
+
 def hammer_speed_lines(r) -> list[str]:
     """Mean strike speed (m/s) per agent next to the rigid bound, from a Hammer ``probe`` result."""
     rigid = float(np.mean(r["rigid_speed"]))
@@ -404,6 +419,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="print the headroom table (markdown) and Hammer's strike speeds after the usual tables")
     ap.add_argument("--write", default=None, metavar="PATH",
                     help="with --headroom: rewrite the 'headroom' generated block of PATH (docs/environments.md)")
+    ap.add_argument("--headroom-json", default=None, metavar="PATH",
+                    help="with --headroom: also write the table as JSON for `vswrist aggregate --headroom`")
     args = ap.parse_args(argv)
     config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
     if args.config is not None:
@@ -450,6 +467,13 @@ def main(argv: list[str] | None = None) -> int:
             path = Path(args.write)
             path.write_text(update(path.read_text(), {"headroom": table}))
             print(f"{path}: headroom block updated")
+        if args.headroom_json:
+            import json
+            from pathlib import Path
+
+            doc = headroom_json(results, args.episodes, args.seed0)
+            Path(args.headroom_json).write_text(json.dumps(doc, indent=1) + "\n")
+            print(f"{args.headroom_json}: {len(doc['tasks'])} tasks")
     return 0
 
 

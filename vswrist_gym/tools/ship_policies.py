@@ -35,7 +35,8 @@ import numpy as np
 from vswrist_gym import pretrained
 
 SHIP = (("LoadHold", "full"), ("Polish", "full"), ("Impact", "full"), ("Insertion", "full"), ("Drill", "full"),
-        ("Hammer", "stiffness"))
+        ("Hammer", "stiffness"), ("LoadHold", "stiffness"), ("Polish", "stiffness"), ("Impact", "stiffness"),
+        ("Insertion", "stiffness"), ("Drill", "stiffness"))
 STIFFNESS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 EVAL_SEEDS = (0, 1, 2, 3, 4)
 EVAL_EPISODES = 4
