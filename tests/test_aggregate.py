@@ -103,3 +103,14 @@ def test_probe_headroom_json_feeds_aggregate(tmp_path, capsys):
     for task, entry in doc["tasks"].items():
         assert entry["headroom"] == max(entry["rule"][0], entry["schedule"][0]) > 0
     assert agg.load_headroom(out) == {t: e["headroom"] for t, e in doc["tasks"].items()}
+
+
+def test_a_task_folder_is_not_replaced_by_another_run_of_the_task(tmp_path):
+    """results/ holds <Task>/ folders and also main_job/ (another Polish run): only Polish/ counts as Polish."""
+    base = [-100.0, -110.0]
+    for name, gain in (("Polish", 10.0), ("main_job", 50.0)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps(_summary("Polish", base, [b + gain for b in base])))
+    s = agg.load_summaries(tmp_path)
+    assert agg.normalised(s["Polish"], "PPO", 10.0) == pytest.approx({0: 1.0, 1: 1.0})
+    assert set(agg.load_summaries(tmp_path / "main_job")) == {"Polish"}

@@ -72,6 +72,7 @@ def load_summaries(result_dir: str | Path) -> dict[str, dict]:
         else sorted(result_dir.glob("*/summary.json"))
     if not files:
         raise AggregateError(f"{result_dir}: no summary.json (expected the output of `vswrist compare`)")
+    single = len(files) == 1 and files[0].parent == result_dir
     out = {}
     for f in files:
         try:
@@ -80,7 +81,10 @@ def load_summaries(result_dir: str | Path) -> dict[str, dict]:
             raise AggregateError(f"{f}: cannot read ({exc})") from exc
         if "task" not in s or "rows" not in s:
             raise AggregateError(f"{f}: not a compare summary (needs 'task' and 'rows')")
-        out[_short(s["task"])] = s
+        # in a folder of task folders only <Task>/summary.json counts: another run of the same task beside them
+        # (results/main_job) must not replace it
+        if single or f.parent.name == _short(s["task"]):
+            out[_short(s["task"])] = s
     return out
 
 
@@ -163,12 +167,14 @@ def profile_plot(scores: Mapping[str, np.ndarray], path: Path, reps: int = 2000,
     taus = np.linspace(min(lo, 0.0) - 0.05, max(hi, 1.0) + 0.05, 101)
     np.random.seed(seed)
     prof, prof_ci = library.create_performance_profile(dict(scores), taus, reps=reps)
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(7, 4.5))
     plot_utils.plot_performance_profiles(prof, taus, performance_profile_cis=prof_ci, ax=ax,
-                                         xlabel=r"normalised score $\tau$ (0 best constant, 1 best schedule)")
+                                         xlabel=r"normalised score $\tau$")
+    lines = ax.get_lines()[:len(scores)]  # one profile line per run, in the order of `scores`; the bands are patches
+    ax.legend(lines, list(scores), loc="upper right", fontsize=9)
     ax.axvline(0.0, color="0.6", lw=0.8)
     ax.axvline(1.0, color="0.6", lw=0.8, ls="--")
-    ax.legend(list(scores), loc="upper right")
+    ax.set_title("0: best constant stiffness; 1: best schedule of the headroom table", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
