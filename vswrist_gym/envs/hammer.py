@@ -38,7 +38,7 @@ import math
 import mujoco
 import numpy as np
 
-from .shared import add_mocap_box_body, frame_from_z, quat_from_matrix
+from .shared import PeriodMeanForce, add_mocap_box_body, frame_from_z, quat_from_matrix
 from .base import VSWristEnv
 
 ANVIL_HALF = (0.05, 0.045, 0.008)  # m: along the handle, across the swing plane, thickness (along the normal)
@@ -72,7 +72,7 @@ def ramp_reference(fe0: float, fe1: float, rate_of, t_start: float, duration: fl
     return np.asarray(ts), np.asarray(fes)
 
 
-class HammerEnv(VSWristEnv):
+class HammerEnv(PeriodMeanForce, VSWristEnv):
     task = "hammer"
     task_id = "VSWrist/Hammer-v0"
     summary = ("swing a hammer (random head mass and handle length) through a fixed, motor-speed-limited FE "
@@ -216,37 +216,21 @@ class HammerEnv(VSWristEnv):
         return np.array([self._rud, float(np.interp(t, self._swing_t, self._swing_fe)), self._ps])
 
     # ------------------------------------------------------------------ physics, one substep at a time
-    def _advance_physics(self, duration: float, first: bool) -> None:
-        m, d, f = self.model, self.data, self._cforce
+    def _is_force_contact(self, c) -> bool:
         hg, ag = self._head_geom, self._anvil_geom
-        dt = self.sim.timestep
-        if first:
-            self._force_sum, self._force_n = 0.0, 0
-        for k in range(int(round(duration / dt))):
-            self.sim.step(dt, restart_peak=first and k == 0)
-            # after mj_step the contact list, the solved forces and the body velocities are those of the state
-            # the substep started from: the first substep that finds the head on the anvil gives the speed just
-            # before any contact force acted
-            for i in range(d.ncon):
-                c = d.contact[i]
-                if (c.geom1 == hg and c.geom2 == ag) or (c.geom1 == ag and c.geom2 == hg):
-                    if self._strike is None:
-                        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, self._head_body, self._vel6, 0)
-                        t = d.time - self._t0 - dt
-                        off = c.pos - self._face
-                        off -= (off @ self._normal) * self._normal  # in the face's plane
-                        self._strike = (t, float(self._vel6[3:] @ self._normal), float(np.linalg.norm(off)))
-                    mujoco.mj_contactForce(m, d, i, f)
-                    self._force_sum += f[0]
-            self._force_n += 1
+        return (c.geom1 == hg and c.geom2 == ag) or (c.geom1 == ag and c.geom2 == hg)
 
-    def _contact_force(self) -> float:
-        """Mean normal force (N) of the anvil on the head over the last control period's substeps."""
-        if self._force_n == 0:
-            return float(self.data.sensordata[self._touch_adr])
-        out = self._force_sum / self._force_n
-        self._force_sum, self._force_n = 0.0, 0
-        return out
+    def _on_force_contact(self, i: int, c) -> None:
+        # after mj_step the contact list, the solved forces and the body velocities are those of the state the
+        # substep started from: the first substep that finds the head on the anvil gives the speed just before
+        # any contact force acted
+        if self._strike is None:
+            d = self.data
+            mujoco.mj_objectVelocity(self.model, d, mujoco.mjtObj.mjOBJ_BODY, self._head_body, self._vel6, 0)
+            t = d.time - self._t0 - self.sim.timestep
+            off = c.pos - self._face
+            off -= (off @ self._normal) * self._normal  # in the face's plane
+            self._strike = (t, float(self._vel6[3:] @ self._normal), float(np.linalg.norm(off)))
 
     # ------------------------------------------------------------------ reward and success
     def timely(self) -> bool:

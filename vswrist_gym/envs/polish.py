@@ -26,12 +26,12 @@ import mujoco
 import numpy as np
 
 from .base import VSWristEnv
-from .shared import FINGER_END, add_mocap_box_body, quat_from_matrix, rot_x, smoothstep
+from .shared import FINGER_END, PeriodMeanForce, add_mocap_box_body, quat_from_matrix, rot_x, smoothstep
 
 SURFACE_HALF = (0.06, 0.16, 0.01)  # m, half sizes of the surface slab
 
 
-class PolishEnv(VSWristEnv):
+class PolishEnv(PeriodMeanForce, VSWristEnv):
     task = "polish"
     task_id = "VSWrist/Polish-v0"
     summary = "sweep a polishing tool over a surface of uncertain height and tilt, holding a target force per pass"
@@ -83,21 +83,8 @@ class PolishEnv(VSWristEnv):
         self._force_sum, self._force_n = 0.0, 0
         self._cforce = np.zeros(6)
 
-    def _advance_physics(self, duration: float, first: bool) -> None:
-        # one substep at a time, summing the normal force each substep's contacts applied (MuJoCo's contact
-        # arrays after mj_step hold that substep's contacts and their solved forces)
-        if first:
-            self._force_sum, self._force_n = 0.0, 0
-        m, d, g, f = self.model, self.data, self._surface_geom, self._cforce
-        dt = self.sim.timestep
-        for k in range(int(round(duration / dt))):
-            self.sim.step(dt, restart_peak=first and k == 0)
-            for i in range(d.ncon):
-                c = d.contact[i]
-                if c.geom1 == g or c.geom2 == g:
-                    mujoco.mj_contactForce(m, d, i, f)
-                    self._force_sum += f[0]
-            self._force_n += 1
+    def _is_force_contact(self, c) -> bool:
+        return c.geom1 == self._surface_geom or c.geom2 == self._surface_geom
 
     def _task_reset(self, rng):
         self._rud_c = float(rng.uniform(*self.tp["contact_rud"]))
@@ -147,15 +134,6 @@ class PolishEnv(VSWristEnv):
     def force_band(self) -> tuple[float, float]:
         f, tol = self.force_target(), self.tp["force_tolerance"]
         return max(f - tol, 0.0), f + tol
-
-    def _contact_force(self) -> float:
-        """Mean normal force (N) of the surface on the tool over the last control period's substeps (at reset,
-        where no period has run: the touch sensor's reading)."""
-        if self._force_n == 0:
-            return float(self.data.sensordata[self._touch_adr])
-        f = self._force_sum / self._force_n
-        self._force_sum, self._force_n = 0.0, 0
-        return f
 
     def _task_reward_terms(self, err) -> dict:
         lo, hi = self.force_band()

@@ -102,3 +102,43 @@ class SceneMixin:
 
     def _sensor_adr(self, name: str) -> int:
         return int(self.model.sensor_adr[self.model.sensor(name).id])
+
+
+class PeriodMeanForce:
+    """Mixin (before ``VSWristEnv`` in the bases) for tasks whose contact force is the mean normal force over the
+    control period's substeps: the tool's tip chatters against stiff contacts at about 100 Hz, so one substep's
+    reading (a touch sensor's) drops to 0 N on many pressed steps. The physics then runs one substep at a time.
+
+    The task sets ``self._cforce = np.zeros(6)`` and ``self._touch_adr`` (read at reset, before any period ran)
+    and defines ``_is_force_contact(c)``; ``_on_force_contact(i, c)`` sees each counted contact first."""
+
+    def _is_force_contact(self, c) -> bool:
+        raise NotImplementedError
+
+    def _on_force_contact(self, i: int, c) -> None:
+        """Called for each counted contact of a substep, before its force is summed."""
+
+    def _advance_physics(self, duration: float, first: bool) -> None:
+        # after mj_step the contact arrays hold that substep's contacts and their solved forces
+        if first:
+            self._force_sum, self._force_n = 0.0, 0
+        m, d, f = self.model, self.data, self._cforce
+        dt = self.sim.timestep
+        for k in range(int(round(duration / dt))):
+            self.sim.step(dt, restart_peak=first and k == 0)
+            for i in range(d.ncon):
+                c = d.contact[i]
+                if self._is_force_contact(c):
+                    self._on_force_contact(i, c)
+                    mujoco.mj_contactForce(m, d, i, f)
+                    self._force_sum += f[0]
+            self._force_n += 1
+
+    def _contact_force(self) -> float:
+        """Mean normal force (N) over the last control period's substeps (at reset, where no period has run: the
+        touch sensor's reading)."""
+        if self._force_n == 0:
+            return float(self.data.sensordata[self._touch_adr])
+        out = self._force_sum / self._force_n
+        self._force_sum, self._force_n = 0.0, 0
+        return out
