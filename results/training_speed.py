@@ -1,20 +1,20 @@
-"""Training speed and returns at equal env steps: a process per env (the pre-batch default) against the batch.
+"""Training speed and returns at equal env steps: the pre-batch default (a process per env) against the default.
 
-    python results/training_speed.py [--task LoadHold] [--algo ppo] [--timesteps 8192] [--seeds 0 1]
-                                     [--out results/training_speed] [--worlds 16]
+    python results/training_speed.py [--task LoadHold] [--algo ppo] [--timesteps 80000] [--seeds 0 1 2]
+                                     [--out results/training_speed] [--worlds N]
 
 Trains, with the packaged hyperparameters of ``--algo`` for the task, one run per setting and seed through the
 ``vswrist train`` command:
 
-* ``subproc``: ``--vec-env subproc`` with the config's ``n_envs`` (a process per env: the pre-batch default);
-* ``batch``: ``--vec-env batch`` with the config's ``n_envs`` (the default now);
-* ``batch-N``: ``--vec-env batch`` with ``--worlds`` worlds and, for PPO, ``n_steps`` scaled so that a rollout
-  holds as many env steps as the config's (so the update schedule per env step is the same).
+* ``subproc-2``: the pre-batch default: ``--vec-env subproc`` with 2 envs (a process each) and, for PPO,
+  ``n_steps`` set so that a rollout holds as many env steps as the packaged entry's;
+* ``default``: the packaged entry as it is (``vec_env: batch``: its ``n_envs`` worlds in one process);
+* ``batch-N`` (with ``--worlds N``): ``--vec-env batch`` with N worlds, PPO's ``n_steps`` scaled the same way.
 
 Speed: env steps per second of training from the episode logs (Monitor/VecMonitor ``t``: seconds since the envs
 were made, so start-up is excluded; evaluation and updates are included). Returns: the mean episode return in
 each quarter of the budget (episodes ordered by their end time; env steps counted over all worlds), and a Welch
-t-test of the last quarter against ``subproc``. A short run shows the mechanics and the speed; equal returns
+t-test of the last quarter against ``subproc-2``. A short run shows the mechanics and the speed; equal returns
 need the full budgets and several seeds.
 """
 
@@ -73,7 +73,7 @@ def main(argv=None) -> int:
     ap.add_argument("--algo", default="ppo", choices=("ppo", "sac"))
     ap.add_argument("--timesteps", type=int, default=8192)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--worlds", type=int, default=16, help="worlds of the batch-N setting (default 16)")
+    ap.add_argument("--worlds", type=int, default=None, help="also a batch of N worlds (PPO's n_steps scaled)")
     ap.add_argument("--out", default=None, help="folder for the runs and results.json (default: a temp folder)")
     args = ap.parse_args(argv)
     env_id = args.task if "/" in args.task else f"VSWrist/{args.task}-v0"
@@ -84,13 +84,20 @@ def main(argv=None) -> int:
 
     entry = yaml.safe_load((CONFIG_DIR / f"{args.algo}.yaml").read_text())[env_id]
     base_envs = int(entry.get("n_envs", 1))
-    scaled = dict(entry, n_envs=args.worlds)
-    if args.algo == "ppo":
-        scaled["n_steps"] = max(1, int(entry.get("n_steps", 2048)) * base_envs // args.worlds)
-    scaled_cfg = out / f"{args.algo}_batch_{args.worlds}.yaml"
-    scaled_cfg.write_text(yaml.safe_dump({env_id: scaled}, sort_keys=False))
-    settings = {"subproc": ["--vec-env", "subproc"], "batch": ["--vec-env", "batch"],
-                f"batch-{args.worlds}": ["--vec-env", "batch", "--config", str(scaled_cfg)]}
+
+    def with_envs(n: int, label: str) -> Path:
+        scaled = dict(entry, n_envs=n)
+        if args.algo == "ppo":  # the same env steps per rollout, so the same updates per env step
+            scaled["n_steps"] = max(1, int(entry.get("n_steps", 2048)) * base_envs // n)
+        path = out / f"{args.algo}_{label}.yaml"
+        path.write_text(yaml.safe_dump({env_id: scaled}, sort_keys=False))
+        return path
+
+    settings = {"subproc-2": ["--vec-env", "subproc", "--config", str(with_envs(2, "subproc2"))],
+                "default": []}
+    if args.worlds:
+        settings[f"batch-{args.worlds}"] = ["--vec-env", "batch", "--config",
+                                            str(with_envs(args.worlds, f"batch{args.worlds}"))]
 
     results = {}
     for name, extra in settings.items():
@@ -110,20 +117,20 @@ def main(argv=None) -> int:
             print(f"{name:<12} seed {seed}: {r['steps_per_s']:.0f} env steps/s over {r['env_steps']} steps", flush=True)
 
     print(f"\n{env_id}, {args.algo.upper()}, {args.timesteps} steps, seeds {args.seeds}")
-    print(f"{'setting':<12}{'steps/s':>9}{'x subproc':>10}" + "".join(f"{f'ret Q{q + 1}':>10}" for q in range(4))
+    print(f"{'setting':<12}{'steps/s':>9}{'x subproc-2':>11}" + "".join(f"{f'ret Q{q + 1}':>10}" for q in range(4))
           + f"{'t (last Q)':>11}{'df':>6}")
     doc = {"task": env_id, "algo": args.algo, "timesteps": args.timesteps, "seeds": args.seeds, "settings": {}}
-    ref_speed = sum(results[("subproc", s)]["steps_per_s"] for s in args.seeds) / len(args.seeds)
-    ref_last = [x for s in args.seeds for x in results[("subproc", s)]["last"]]
+    ref_speed = sum(results[("subproc-2", s)]["steps_per_s"] for s in args.seeds) / len(args.seeds)
+    ref_last = [x for s in args.seeds for x in results[("subproc-2", s)]["last"]]
     for name in settings:
         rs = [results[(name, s)] for s in args.seeds]
         speed = sum(r["steps_per_s"] for r in rs) / len(rs)
         quarters = [sum(r["quarters"][q] for r in rs) / len(rs) for q in range(4)]
         last = [x for r in rs for x in r["last"]]
         t, df = welch(last, ref_last)
-        print(f"{name:<12}{speed:>9.0f}{speed / ref_speed:>10.2f}" + "".join(f"{q:>10.1f}" for q in quarters)
+        print(f"{name:<12}{speed:>9.0f}{speed / ref_speed:>11.2f}" + "".join(f"{q:>10.1f}" for q in quarters)
               + f"{t:>11.2f}{df:>6.0f}")
-        doc["settings"][name] = {"steps_per_s": speed, "vs_subproc": speed / ref_speed, "quarter_returns": quarters,
+        doc["settings"][name] = {"steps_per_s": speed, "vs_subproc_2": speed / ref_speed, "quarter_returns": quarters,
                                  "welch_t_last_quarter": t, "welch_df": df, "args": settings[name]}
     (out / "results.json").write_text(json.dumps(doc, indent=2))
     print(f"runs and results.json in {out}")

@@ -118,3 +118,29 @@ def test_optimised_schedule_beats_every_constant_on_held_out_episodes():
     r = probe("Hammer", episodes=8, seed0=1000)
     assert r["oracle"][0] > max(v[0] for v in r["constant"].values())
     assert len(CONSTANT_COMMANDS) == len(r["constant"])
+
+
+def test_evaluate_records_the_strike_speed_of_the_last_step():
+    """`vswrist evaluate`'s records carry Hammer's impact speed: the last step's info of the same episodes run
+    directly (a second path: gym.make, the analytic agent, the protocol's reset seeds), and NaN on a task without
+    it; the comparison table shows the column only where a row reports it."""
+    from vswrist_gym.agents.analytic import AnalyticAgent
+    from vswrist_gym.agents.compare import table_markdown
+    from vswrist_gym.agents.protocol import evaluate as protocol_evaluate
+    from vswrist_gym.agents.protocol import reset_seed, summarise
+
+    records, _ = protocol_evaluate(ID, lambda e: AnalyticAgent(e, stiffness=-0.5), seeds=[0], episodes=2)
+    env = gym.make(ID)
+    agent = AnalyticAgent(env, stiffness=-0.5)
+    for k, rec in enumerate(records):
+        obs, info = env.reset(seed=reset_seed(0, k))
+        done = False
+        while not done:
+            obs, _, term, trunc, info = env.step(agent.predict(obs, deterministic=True)[0])
+            done = term or trunc
+        assert info["struck"] and rec["impact_speed"] == pytest.approx(info["impact_speed"], rel=1e-9)
+        assert rec["impact_speed"] > info["rigid_speed"]  # springs outrun the rigid bound at s = -0.5
+    other, _ = protocol_evaluate("VSWrist/LoadHold-v0", lambda e: AnalyticAgent(e), seeds=[0], episodes=1)
+    assert np.isnan(other[0]["impact_speed"])
+    assert "impact_speed" in table_markdown([("a", summarise(records))])
+    assert "impact_speed" not in table_markdown([("a", summarise(other))])

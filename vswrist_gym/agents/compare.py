@@ -153,6 +153,12 @@ def _cell(s: dict, name: str) -> str:
 
 
 def table_markdown(rows: list[tuple[str, dict]], metrics=TABLE_METRICS) -> str:
+    """The summary table; a task's own metric (``TASK_METRICS``, e.g. Hammer's impact speed) joins the columns
+    where some row reports it."""
+    from vswrist_gym.agents.protocol import TASK_METRICS
+
+    metrics = tuple(metrics) + tuple(m for m in TASK_METRICS if m not in metrics and any(
+        m in summary and not _isnan(summary[m]["mean"]) for _, summary in rows))
     head = "| agent | " + " | ".join(f"{m}" + (f" ({METRICS[m][0]})" if METRICS[m][0] else "") for m in metrics) + " |"
     lines = [head, "|" + "---|" * (len(metrics) + 1)]
     for label, summary in rows:

@@ -17,8 +17,8 @@ import sys
 from pathlib import Path
 
 from vswrist_gym.agents.hparams import ConfigError
-from vswrist_gym.agents.protocol import (METRICS, PARTIAL_FILE, check_eval_seeds, evaluate, summarise, write_metrics,
-                                         write_partial)
+from vswrist_gym.agents.protocol import (METRICS, PARTIAL_FILE, TASK_METRICS, check_eval_seeds, evaluate, summarise,
+                                         write_metrics, write_partial)
 from vswrist_gym.agents.runs import RunDirError, TrainedAgent, check_new_out, check_writable, versions
 
 # what an evaluation output folder holds: a folder with anything else is refused as --out
@@ -126,6 +126,8 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
 def format_summary(summary: dict) -> str:
     lines = [f"{'metric':<20} {'unit':<6} {'mean':>11}  95% CI over seeds"]
     for name, s in summary.items():
+        if name in TASK_METRICS and s["mean"] != s["mean"]:
+            continue  # a task metric this task does not report
         ci = "n/a" if s["low"] != s["low"] else f"[{s['low']:.4g}, {s['high']:.4g}]"
         lines.append(f"{name:<20} {METRICS[name][0]:<6} {s['mean']:>11.4g}  {ci}")
     return "\n".join(lines)

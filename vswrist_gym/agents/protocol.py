@@ -30,7 +30,10 @@ METRICS = {
     "elastic_energy": ("J", "mean elastic energy stored in the springs"),
     "stiffness_used": ("N m", "mean internal torque lambda (the stiffness the agent chose)"),
     "length": ("steps", "episode length"),
+    # a task's own outcome, from the info of its last step; NaN on the tasks that do not report it
+    "impact_speed": ("m/s", "Hammer: the head's speed normal to the anvil at the strike (0 if it missed)"),
 }
+TASK_METRICS = ("impact_speed",)  # read from the last step's info where the task reports them
 
 
 EVAL_SEED_MAX = (2**32 - 1 - EVAL_SEED_BASE) // 1000 - 1  # keeps every reset seed a valid 32-bit NumPy seed
@@ -86,6 +89,7 @@ class _Episode:
         self.dt, self.trace = dt, Trace()
         self.total, self.steps, self.success, self.peak = 0.0, 0, math.nan, math.nan
         self.energies: list[float] = []
+        self.task = {k: math.nan for k in TASK_METRICS}
 
     def add(self, reward: float, info: dict, done: bool) -> None:
         trace = self.trace
@@ -102,6 +106,8 @@ class _Episode:
             self.peak = p if math.isnan(self.peak) else max(self.peak, p)
         if done and "is_success" in info:
             self.success = float(bool(info["is_success"]))
+        if done:
+            self.task = {k: _info_value(info, k) for k in TASK_METRICS}
 
     def record(self) -> tuple[dict, Trace]:
         trace, peak = self.trace, self.peak
@@ -117,6 +123,7 @@ class _Episode:
             "elastic_energy": float(np.mean(self.energies)),
             "stiffness_used": float(np.mean(trace.lam)),
             "length": float(self.steps),
+            **self.task,
         }
         return record, trace
 
@@ -267,8 +274,9 @@ def summarise(records: list[dict]) -> dict:
     seeds = sorted({r["seed"] for r in records})
     out = {}
     for name in METRICS:
-        per_seed = [float(np.nanmean([r[name] for r in records if r["seed"] == s]))
-                    if not all(math.isnan(r[name]) for r in records if r["seed"] == s) else math.nan
+        # records written before a metric existed lack it: NaN, as for a task that does not report it
+        per_seed = [float(np.nanmean([r.get(name, math.nan) for r in records if r["seed"] == s]))
+                    if not all(math.isnan(r.get(name, math.nan)) for r in records if r["seed"] == s) else math.nan
                     for s in seeds]
         out[name] = {**mean_ci(per_seed), "per_seed": per_seed, "seeds": seeds, "unit": METRICS[name][0]}
     return out

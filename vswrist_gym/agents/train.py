@@ -89,7 +89,11 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
                 update_run_json(run_dir, checkpoint_step=int(self.model.num_timesteps))
             return True
 
-    eval_env = make_vec_env(cfg, 1, seed + EVAL_SEED_OFFSET, monitor_dir=None)
+    # with the batched core the periodic evaluation runs its episodes side by side, one world each (world i seeded
+    # seed + EVAL_SEED_OFFSET + i, re-seeded before every evaluation), so it costs one episode's worth of Python
+    # calls instead of n_eval_episodes; a process-per-env run evaluates on one env, episode after episode
+    eval_worlds = cfg.n_eval_episodes if cfg.vec_env == "batch" and cfg.env_id.startswith("VSWrist/") else 1
+    eval_env = make_vec_env(cfg, eval_worlds, seed + EVAL_SEED_OFFSET, monitor_dir=None)
     if cfg.normalize is not None:
         from stable_baselines3.common.vec_env import VecNormalize
 
