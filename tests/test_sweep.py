@@ -151,3 +151,19 @@ def test_an_override_never_replaces_a_whole_value_by_some_of_its_fields():
     assert deep_merge(base, {"env_kwargs": {"b": {"c": 3}}})["env_kwargs"] == {"a": 1, "b": {"c": 3}}
     with pytest.raises(SweepError, match="policy_kwargs"):
         deep_merge(base, {"policy_kwargs": {"log_std_init": -1.0}})
+
+
+def test_trial_cpus_follow_the_vec_env(tmp_path):
+    """A batched run steps its worlds on one thread and asks Ray for one CPU, whatever its n_envs; a run with a
+    process per env asks for n_envs."""
+    doc = dict(GOOD, stiffness=[], n_envs={"ppo": 8})
+    (tmp_path / "batch.yaml").write_text(yaml.safe_dump(doc))
+    (tmp_path / "sub.yaml").write_text(yaml.safe_dump(dict(doc, overrides={"ppo": {"vec_env": "subproc"}})))
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        batch, sub = (load_sweep(tmp_path / f).trials() for f in ("batch.yaml", "sub.yaml"))
+    finally:
+        os.chdir(cwd)
+    assert [t["cpus"] for t in batch] == [1, 1] and [t["n_envs"] for t in batch] == [8, 8]
+    assert [t["cpus"] for t in sub] == [8, 8]

@@ -11,7 +11,8 @@ the committed sweeps). Keys (every other key is an error that names it):
     episodes: 10               protocol evaluation episodes per seed (grid)
     stiffness: [-1, ..., 1]    fixed stiffness commands of the analytic baseline trials (grid; [] for none)
     timesteps: {ppo: 100000}   training steps per seed (default: the config's n_timesteps)
-    n_envs: {ppo: 2}           environments per run (default: the config's n_envs); also the trial's CPUs
+    n_envs: {ppo: 2}           environments per run (default: the config's n_envs); also the trial's CPUs,
+                               except for a batched run (vec_env: batch), which asks for one
     configs: {ppo: FILE}       hyperparameter file (default: the packaged configs/<algo>.yaml)
     overrides: {ppo: {...}}    merged into every task's entry (ablations), e.g.
                                {env_kwargs: {residual: {stiffness_scale: 0.0}}}
@@ -164,7 +165,12 @@ class Sweep:
         return int(self.timesteps.get(algo) or self.entries[(algo, env_id)]["n_timesteps"])
 
     def cpus(self, algo: str, env_id: str) -> int:
-        return int(self.n_envs.get(algo) or self.entries[(algo, env_id)].get("n_envs", 1))
+        """CPUs a trial asks Ray for: one for a batched run (``vec_env: batch``: its worlds step on one thread, and
+        a grid's parallelism comes from trials side by side), else one per environment process (``n_envs``)."""
+        entry = self.entries[(algo, env_id)]
+        if entry.get("vec_env", "batch") == "batch" and env_id.startswith("VSWrist/"):
+            return 1
+        return int(self.n_envs.get(algo) or entry.get("n_envs", 1))
 
     def trials(self) -> list[dict]:
         """Every grid trial as a plain (JSON-able) dict; absolute paths, since Ray workers run elsewhere."""

@@ -2,7 +2,8 @@
 
 Ray starts embedded on this machine (its CPU count as resources) or joins a cluster by address; on a cluster every
 node must see the sweep's folders at the same absolute paths (a shared file system) and have this package
-installed. A trial asks for as many CPUs as its run has environments (`n_envs`); an analytic baseline for one.
+installed. A trial asks for one CPU if its run is batched (`vec_env: batch`), else one per env process (`n_envs`); an
+analytic baseline for one.
 
 Fault tolerance rests on the run directories, not on Tune's state: a trial whose worker or node died is retried
 by Tune (`max_failures`), and the retry resumes the training from the run's newest intact checkpoint; `--resume`
