@@ -75,7 +75,7 @@ def task_name(name: str) -> str:
     return short
 
 
-def env_id(name: str) -> str:
+def resolve_id(name: str) -> str:
     """The registered id a task name means: a short name ('Polish') is its task's newest version
     ('VSWrist/Polish-v1'); a full id ('VSWrist/Polish-v0') is itself."""
     full = name if name.startswith("VSWrist/") else f"VSWrist/{name}"

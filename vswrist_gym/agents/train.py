@@ -34,16 +34,18 @@ EVAL_SEED_OFFSET = 10_000  # periodic-evaluation environments never share seeds 
 
 
 def task_id(name: str) -> str:
-    """Accept a full id ('VSWrist/Polish-v0', 'Pendulum-v1') or a VSWrist short name ('Polish')."""
+    """Accept a full id ('VSWrist/Polish-v0', 'Pendulum-v1') or a VSWrist short name ('Polish': its newest
+    version, 'VSWrist/Polish-v1')."""
     import gymnasium as gym
 
-    import vswrist_gym  # noqa: F401  (registers the VSWrist/ ids)
+    import vswrist_gym  # registers the VSWrist/ ids
 
     if name in gym.registry:
         return name
-    for candidate in (f"VSWrist/{name}-v0", f"VSWrist/{name}"):
-        if candidate in gym.registry:
-            return candidate
+    if name in vswrist_gym.LATEST:
+        return vswrist_gym.LATEST[name]
+    if f"VSWrist/{name}" in gym.registry:
+        return f"VSWrist/{name}"
     check_env_id(name)  # raises a ConfigError listing the registered tasks
     return name
 

@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import TASKS, resolve_id
 
 
 def reference_agent(env, stiffness: float):
@@ -54,7 +54,8 @@ def adaptive_agent(env, threshold: float = 0.05):
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
+    ap.add_argument("--task", required=True, type=resolve_id,
+                    help=f"{', '.join(TASKS)} (the newest version), or a full id")
     ap.add_argument("--agent", default="reference",
                     help="reference | adaptive | random | analytic[:S] | pretrained:TASK[:TRACK] | RUN_DIR | "
                          "RL Zoo folder | model file in one")
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     render = {"width": args.width, "height": args.height}
     if args.camera:
         render["camera"] = args.camera
-    env_id = f"VSWrist/{args.task}-v0"
+    env_id = args.task
     builtin = args.agent in ("reference", "adaptive", "random")
     kwargs: dict = {}
     if not builtin:
