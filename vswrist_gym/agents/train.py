@@ -292,7 +292,7 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vswrist train", description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
+    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold: its newest version)")
     p.add_argument("--algo", required=True, choices=ALGO_NAMES)
     p.add_argument("--config", help="hyperparameter YAML keyed by env id (default: the packaged configs/<algo>.yaml)")
     p.add_argument("--timesteps", type=int, help="total training steps (overrides n_timesteps)")

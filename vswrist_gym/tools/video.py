@@ -8,7 +8,7 @@ Agents:
 * ``random``: uniform random actions;
 * ``analytic`` or ``analytic:STIFFNESS``: the analytic baseline, as ``vswrist evaluate`` runs it;
 * ``pretrained:<Task>[:<track>]``: a policy shipped in the package (``vswrist_gym.pretrained``), as a trained run;
-* a trained run: a ``vswrist train`` run directory or an RL Zoo experiment folder (``logs/ppo/VSWrist-Polish-v0_1``),
+* a trained run: a ``vswrist train`` run directory or an RL Zoo experiment folder (``logs/ppo/VSWrist-Polish-v1_1``),
   or a model file inside either: its deterministic policy with its own normalisation statistics, on the
   environment built with its own ``env_kwargs`` (action mode). A run from another task, a model file outside a run
   folder, or an environment whose settings differ from the run's is a one-line error, never a wrong video.
