@@ -97,7 +97,8 @@ def newest_task_name(name: str) -> str:
 
 
 def vector_entry_name(env_id: str) -> str:
-    """The name in ``vswrist_gym.envs.batch`` of an id's vector entry point: 'VSWrist/Polish-v1' -> 'PolishV1VectorEnv'."""
+    """The name in ``vswrist_gym.envs.batch`` of an id's vector entry point ('VSWrist/Polish-v1' ->
+    'PolishV1VectorEnv')."""
     short, version = _split(env_id)
     return f"{short}V{version}VectorEnv"
 

@@ -11,12 +11,13 @@ on a soft wrist (Phan et al. 2020: human polishers stiffen the wrist as the forc
 
 Success: the force is in band in at least ``success_fraction`` of the steps after ``settle_s``.
 
-``VSWrist/Polish-v1`` (``task.contact_force: period_mean``) reads the normal force as the mean over the control period's physics substeps of the contact force the surface
-exerts on the tool, not one sample: while the tool slides with friction its tip chatters at about 100 Hz
-by tens of micrometres, and the near-rigid contact then lets go for single 1 ms substeps (gone without
-friction or without the sweep; docs/environments.md), so the touch sensor's end-of-period sample read 0 N on
-15-25 % of the steps while the period's mean stays at 5-8 N. ``VSWrist/Polish-v0`` (``last_substep``) keeps
-that sample, so that results made with it stay reproducible; the two differ in nothing else.
+``VSWrist/Polish-v1`` (``task.contact_force: period_mean``) reads the normal force as the mean over the control
+period's physics substeps of the contact force the surface exerts on the tool, not one sample: while the tool
+slides with friction its tip chatters at about 100 Hz by tens of micrometres, and the near-rigid contact then lets
+go for single 1 ms substeps (gone without friction or without the sweep; docs/environments.md), so the touch
+sensor's end-of-period sample read 0 N on 15-25 % of the steps while the period's mean stays at 5-8 N.
+``VSWrist/Polish-v0`` (``last_substep``) keeps that sample, so that results made with it stay reproducible; the
+two differ in nothing else.
 """
 
 from __future__ import annotations
