@@ -78,11 +78,11 @@ def task_name(name: str) -> str:
 def resolve_id(name: str) -> str:
     """The registered id a task name means: a short name ('Polish') is its task's newest version
     ('VSWrist/Polish-v1'); a full id ('VSWrist/Polish-v0') is itself."""
-    full = name if name.startswith("VSWrist/") else f"VSWrist/{name}"
-    if full in ENV_IDS:
-        return full
-    if name in LATEST:
-        return LATEST[name]
+    short = name.removeprefix("VSWrist/")
+    if f"VSWrist/{short}" in ENV_IDS:
+        return f"VSWrist/{short}"
+    if short in LATEST:  # 'Polish' or 'VSWrist/Polish'
+        return LATEST[short]
     raise _unknown(name)
 
 
@@ -90,7 +90,7 @@ def newest_task_name(name: str) -> str:
     """``task_name`` for the tools that run each task's newest version (bench, probe, pictures, ...): a full id
     of an older version is refused rather than silently replaced by the newest."""
     short = task_name(name)
-    if name.startswith("VSWrist/") and name != LATEST[short]:
+    if resolve_id(name) != LATEST[short]:
         raise TaskNameError(f"{name} is not the newest version of {short}; this tool runs {LATEST[short]} "
                             f"(give {short!r})")
     return short
