@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
-import vswrist_gym  # noqa: F401  (registers the ids)
+import vswrist_gym
 from vswrist_gym.agents.analytic import AnalyticAgent
 from vswrist_gym.envs.config import EnvConfigError
 
@@ -129,3 +129,16 @@ def test_make_vec_builds_each_version(env_id, reading):
         forces.append(i["contact_force"])
     assert max(forces) > 1.0  # the tool is pressed: the reading was exercised
     venv.close()
+
+
+def test_a_policy_of_one_version_is_refused_on_the_other():
+    """The shipped Polish policy was trained with the period-mean force (v1): on v0 it is a one-line error
+    naming the id to use, on `--task Polish` (the newest) it runs."""
+    from vswrist_gym.agents.evaluate import AgentSpec
+    from vswrist_gym.agents.runs import RunDirError
+
+    spec = AgentSpec("pretrained:Polish")
+    spec.check_task(vswrist_gym.resolve_id("Polish"))
+    with pytest.raises(RunDirError) as exc:
+        spec.check_task("VSWrist/Polish-v0")
+    assert "give --task VSWrist/Polish-v1" in str(exc.value) and "\n" not in str(exc.value)

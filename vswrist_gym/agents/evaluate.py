@@ -72,7 +72,8 @@ class AgentSpec:
 
     def check_task(self, env_id: str) -> None:
         if self.trained is not None and self.trained.env_id != env_id:
-            raise RunDirError(f"{self.text} was trained on {self.trained.env_id}, not on {env_id}")
+            raise RunDirError(f"{self.text} was trained on {self.trained.env_id}, not on {env_id} "
+                              f"(give --task {self.trained.env_id})")
 
     def make(self, env):
         """Build the agent for `env` (the analytic agent reads the env's action mapping)."""
