@@ -73,7 +73,9 @@ def main(argv=None) -> int:
     ap.add_argument("--worlds", type=int, default=None, help="also a batch of N worlds (PPO's n_steps scaled)")
     ap.add_argument("--out", default=None, help="folder for the runs and results.json (default: a temp folder)")
     args = ap.parse_args(argv)
-    env_id = args.task if "/" in args.task else f"VSWrist/{args.task}-v0"
+    from vswrist_gym import resolve_id
+
+    env_id = resolve_id(args.task)  # a short name is the task's newest version
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="training_speed_"))
     out.mkdir(parents=True, exist_ok=True)
 

@@ -57,6 +57,28 @@ def test_task_name_takes_both_forms():
             vswrist_gym.task_name(bad)
 
 
+def test_short_names_mean_the_newest_version():
+    """A short name is its task's highest registered version; a full id keeps its own version."""
+    by_task = {}
+    for full in vswrist_gym.ENV_IDS:
+        short, version = full.split("/")[1].rsplit("-v", 1)
+        by_task.setdefault(short, []).append(int(version))
+    assert set(vswrist_gym.TASKS) == set(by_task)
+    for short, versions in by_task.items():
+        newest = f"VSWrist/{short}-v{max(versions)}"
+        assert vswrist_gym.LATEST[short] == vswrist_gym.resolve_id(short) == newest
+        assert vswrist_gym.newest_task_name(newest) == short
+        for v in versions:
+            assert vswrist_gym.resolve_id(f"VSWrist/{short}-v{v}") == f"VSWrist/{short}-v{v}"
+    assert vswrist_gym.LATEST["Polish"] == "VSWrist/Polish-v1"
+    with pytest.raises(ValueError, match="not the newest version of Polish") as exc:
+        vswrist_gym.newest_task_name("VSWrist/Polish-v0")
+    assert "\n" not in str(exc.value)
+    for bad in ("Polishh", "VSWrist/Polish-v9", ""):
+        with pytest.raises(ValueError, match="full id"):
+            vswrist_gym.resolve_id(bad)
+
+
 # every command-line tool that takes tasks, as a module with main(argv) and its task option
 TASK_CLIS = [("vswrist_gym.tools.bench", "--tasks"), ("vswrist_gym.tools.probe", "--tasks"),
              ("vswrist_gym.tools.closure", "--tasks"), ("vswrist_gym.tools.soak", "--tasks"),
@@ -78,10 +100,21 @@ def test_every_task_option_parses_with_task_name(module, option, capsys):
     assert "or its full id" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("module", ["vswrist_gym.tools.bench", "vswrist_gym.tools.probe", "vswrist_gym.tools.closure",
+                                    "vswrist_gym.tools.soak", "vswrist_gym.tools.pictures"])
+def test_tools_that_run_the_newest_versions_refuse_an_older_id(module, capsys):
+    """They take short names for the newest version; an older id is a one-line error, never swapped for it."""
+    mod = importlib.import_module(module)
+    with pytest.raises(SystemExit) as exc:
+        mod.main(["--tasks", "VSWrist/Polish-v0"])
+    assert exc.value.code == 2
+    assert "not the newest version of Polish" in capsys.readouterr().err
+
+
 def test_train_evaluate_compare_take_both_forms(tmp_path):
     """The same agent on the same episode under the short name and the full id gives the same numbers."""
     returns = []
-    for name in ("Polish", "VSWrist/Polish-v0"):
+    for name in ("Polish", "VSWrist/Polish-v1"):
         out = tmp_path / name.replace("/", "_")
         res = cli("evaluate", "--task", name, "--agent", "analytic:0", "--episodes", "1", "--seeds", "0",
                   "--out", out)
@@ -90,4 +123,5 @@ def test_train_evaluate_compare_take_both_forms(tmp_path):
     assert returns[0] == returns[1]
     from vswrist_gym.agents.train import task_id
 
-    assert task_id("Polish") == task_id("VSWrist/Polish-v0") == "VSWrist/Polish-v0"
+    assert task_id("Polish") == task_id("VSWrist/Polish-v1") == "VSWrist/Polish-v1"
+    assert task_id("VSWrist/Polish-v0") == "VSWrist/Polish-v0"  # an older version stays itself

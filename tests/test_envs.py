@@ -198,7 +198,7 @@ def test_control_period_is_whole_number_of_physics_steps():
 
 
 def test_reference_to_action_inverts_posture_stiffness_mapping():
-    env = make("VSWrist/Polish-v0")
+    env = make("VSWrist/Polish-v1")
     u = env.unwrapped
     env.reset(seed=0)
     rom = u.nominal_params.range_of_motion
@@ -274,7 +274,7 @@ def test_rgb_array_frames(env_id, headless_gl):
 def test_the_floor_is_drawn_only_and_frames_default_to_640_by_480(headless_gl):
     """The floor collides with nothing, so it cannot change the dynamics; a config asking for a frame larger than
     the model's offscreen buffer is refused up front instead of failing inside MuJoCo at the first render."""
-    env = make("VSWrist/Polish-v0", render_mode="rgb_array")
+    env = make("VSWrist/Polish-v1", render_mode="rgb_array")
     m = env.unwrapped.model
     floor = m.geom("floor").id
     assert m.geom_contype[floor] == 0 and m.geom_conaffinity[floor] == 0
@@ -282,7 +282,7 @@ def test_the_floor_is_drawn_only_and_frames_default_to_640_by_480(headless_gl):
     assert env.render().shape == (480, 640, 3)
     env.close()
     with pytest.raises(EnvConfigError, match=r"render\.width"):
-        make("VSWrist/Polish-v0", render_mode="rgb_array", config={"render": {"width": 4096}})
+        make("VSWrist/Polish-v1", render_mode="rgb_array", config={"render": {"width": 4096}})
 
 
 @pytest.mark.parametrize("env_id", IDS)
@@ -327,7 +327,7 @@ def _residual_runs(residual: dict, actions) -> list:
     """(observation without prev_action, return) after 10 steps of each constant residual action."""
     runs = []
     for a in actions:
-        env = make("VSWrist/Polish-v0", action_mode="residual", residual=residual)
+        env = make("VSWrist/Polish-v1", action_mode="residual", residual=residual)
         obs, _ = env.reset(seed=3)
         total = 0.0
         for _ in range(10):
@@ -362,7 +362,7 @@ def test_residual_with_zero_posture_scale_ignores_the_posture_action():
     assert runs[0][1] == runs[1][1]
     assert not np.array_equal(runs[0][0], runs[2][0])
     # the same episode in posture_stiffness mode, commanding the target with stiffness 0 + 2 * 0.25 = 0.5
-    env = make("VSWrist/Polish-v0")
+    env = make("VSWrist/Polish-v1")
     u = env.unwrapped
     obs, _ = env.reset(seed=3)
     total = 0.0
@@ -625,7 +625,7 @@ def test_python_fallback_callbacks_build_and_step_a_task_like_the_compiled_ones(
     for backend in ("1", "0"):
         monkeypatch.setenv("VSWRIST_NATIVE", backend)  # read by every WristSim's native.install()
         try:
-            env = make("VSWrist/Polish-v0")
+            env = make("VSWrist/Polish-v1")
             assert native.backend() == ("c" if backend == "1" else "python")
             obs, _ = env.reset(seed=3)
             for _ in range(3):
@@ -670,7 +670,7 @@ def test_polish_force_is_the_period_mean_of_the_substep_contact_forces():
 
     from vswrist_gym.tools.probe import constant_policy
 
-    env = make("VSWrist/Polish-v0", config={"randomize": {"sensor_noise": {"enabled": False}}})
+    env = make("VSWrist/Polish-v1", config={"randomize": {"sensor_noise": {"enabled": False}}})
     u = env.unwrapped
     step, forces, f6 = u.sim.step, [], np.zeros(6)
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import vswrist_gym
 from vswrist_gym import pretrained
 from vswrist_gym.agents.hparams import ConfigError, track_of
 
@@ -109,7 +110,7 @@ def test_folder_is_a_trimmed_run_whose_card_matches(key):
     assert names == set(pretrained.RUN_FILES) | set(pretrained.CARD_FILES)  # no checkpoints, logs, curves
     card = card_of(folder)
     cfg, seed = read_config(folder)
-    assert (card["task"], card["track"], card["env_id"]) == (task, track, f"VSWrist/{task}-v0") == \
+    assert (card["task"], card["track"], card["env_id"]) == (task, track, vswrist_gym.LATEST[task]) == \
            (task, track_of(cfg.env_kwargs), cfg.env_id)
     assert card["training_seed"] == seed and card["budget_steps"] == cfg.n_timesteps
     assert card["steps_trained"] >= card["budget_steps"]

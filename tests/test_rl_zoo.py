@@ -18,8 +18,8 @@ from vswrist_gym.agents import hparams
 
 pytest.importorskip("rl_zoo3")
 
-TASK = "VSWrist/Polish-v0"
-FOLDER = "VSWrist-Polish-v0"  # rl_zoo3's folder name for the id
+TASK = "VSWrist/Polish-v1"
+FOLDER = "VSWrist-Polish-v1"  # rl_zoo3's folder name for the id
 EVAL_SEED = 1_000_000  # `vswrist evaluate` resets episode 0 of seed 0 with this seed (protocol.reset_seed)
 
 

@@ -28,7 +28,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import vswrist_gym  # noqa: F401
+import vswrist_gym
 from vswrist_gym.tools.probe import adaptive_policy, constant_policy, evaluate, oracle_policy, random_policy
 
 N = 10
@@ -55,7 +55,7 @@ def _baseline(env):
 
 @pytest.mark.parametrize("task", list(COMPETENT))
 def test_flailing_does_not_beat_the_analytic_baseline(task):
-    env = gym.make(f"VSWrist/{task}-v0")
+    env = gym.make(vswrist_gym.LATEST[task])
     baseline = _rate(env, _baseline(env))
     rates, deepest = {}, []
     u = env.unwrapped
@@ -80,7 +80,7 @@ def test_flailing_does_not_beat_the_analytic_baseline(task):
         reached = np.mean(np.array(deepest) >= u.tp["success_depth"] * u.tp["hole_depth"])
         assert reached >= 0.3, f"flailing reached the success depth in only {reached:.0%} of the episodes"
     if task != "Insertion":  # see the module docstring
-        res = gym.make(f"VSWrist/{task}-v0", config={"action_mode": "residual"})
+        res = gym.make(vswrist_gym.LATEST[task], config={"action_mode": "residual"})
         for label, bang in (("random (residual)", False), ("bang-bang (residual)", True)):
             rng = np.random.default_rng(0)
             rates[label] = _rate(res, lambda b=bang: random_policy(res, rng, b))

@@ -120,10 +120,10 @@ def test_best_entry_is_written_where_vswrist_train_reads_it(tmp_path):
     target = tmp_path / "tuned_sac.yaml"
     pendulum = hparams.load_file(hparams.default_config_path("sac"))["Pendulum-v1"]
     write_best_entry(target, "sac", "Pendulum-v1", {**pendulum, "learning_rate": 7.5e-4}, comment="test")
-    polish = hparams.load_file(hparams.default_config_path("sac"))["VSWrist/Polish-v0"]
-    write_best_entry(target, "sac", "VSWrist/Polish-v0", {**polish, "gamma": 0.97})
+    polish = hparams.load_file(hparams.default_config_path("sac"))["VSWrist/Polish-v1"]
+    write_best_entry(target, "sac", "VSWrist/Polish-v1", {**polish, "gamma": 0.97})
     assert hparams.load_config("sac", "Pendulum-v1", target).algo_kwargs["learning_rate"] == 7.5e-4  # kept
-    assert hparams.load_config("sac", "VSWrist/Polish-v0", target).algo_kwargs["gamma"] == 0.97
+    assert hparams.load_config("sac", "VSWrist/Polish-v1", target).algo_kwargs["gamma"] == 0.97
     with pytest.raises(hparams.ConfigError, match="gama"):
         write_best_entry(target, "sac", "Pendulum-v1", {**pendulum, "gama": 0.9})
     assert hparams.load_config("sac", "Pendulum-v1", target).algo_kwargs["learning_rate"] == 7.5e-4

@@ -204,7 +204,7 @@ def test_documented_rl_zoo_command_matches_the_file():
     doc = (Path(__file__).resolve().parents[1] / "docs" / "training.md").read_text()
     command = doc[doc.index("python -m rl_zoo3.train"):].split("\n\n")[0].split("```")[0].replace("\\\n", " ")
     words = command.split()
-    args = hparams.zoo_train_args("ppo", "VSWrist/Polish-v0")
+    args = hparams.zoo_train_args("ppo", "VSWrist/Polish-v1")
     for flag, value in zip(args[::2], args[1::2]):
         assert flag in words, flag
         shown = words[words.index(flag) + 1]
@@ -517,7 +517,7 @@ def _track_rollout(env_id: str, track: str, posture_action: float) -> np.ndarray
     return np.array(out)
 
 
-@pytest.mark.parametrize("env_id", ["VSWrist/Polish-v0", "VSWrist/LoadHold-v0"])
+@pytest.mark.parametrize("env_id", ["VSWrist/Polish-v1", "VSWrist/LoadHold-v0"])
 def test_stiffness_track_ignores_the_posture_outputs(env_id):
     """On the stiffness track the posture reference is the task's: policies that differ only in their posture
     outputs give the same episode; on the full track they do not."""
@@ -528,13 +528,13 @@ def test_stiffness_track_ignores_the_posture_outputs(env_id):
 
 
 def test_track_of_entries_and_bad_tracks():
-    assert hparams.track_of(hparams.load_config("ppo", "VSWrist/Polish-v0").env_kwargs) == "full"
+    assert hparams.track_of(hparams.load_config("ppo", "VSWrist/Polish-v1").env_kwargs) == "full"
     assert hparams.track_of(hparams.load_config("ppo", "VSWrist/Hammer-v0").env_kwargs) == "stiffness"
     assert hparams.track_of({"action_mode": "posture_stiffness"}) == "custom"
     with pytest.raises(hparams.ConfigError, match="posture_scale"):  # a stiffness-only entry has no full track
         hparams.with_track(hparams.load_config("ppo", "VSWrist/Hammer-v0"), "full")
     with pytest.raises(hparams.ConfigError, match="track must be one of"):
-        hparams.with_track(hparams.load_config("ppo", "VSWrist/Polish-v0"), "posture")
+        hparams.with_track(hparams.load_config("ppo", "VSWrist/Polish-v1"), "posture")
 
 
 def test_train_on_the_stiffness_track_and_refuse_a_mixed_resume(tmp_path):

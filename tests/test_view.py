@@ -41,9 +41,9 @@ def test_pause_single_step_and_restart():
 
     from vswrist_gym.agents.analytic import AnalyticAgent
 
-    env = gym.make("VSWrist/Polish-v0")
+    env = gym.make("VSWrist/Polish-v1")
     session = view.ViewerSession(env, AnalyticAgent(env), seed=3, speed=1000.0, log=lambda *a: None)
-    fresh = gym.make("VSWrist/Polish-v0")
+    fresh = gym.make("VSWrist/Polish-v1")
     first_obs, _ = fresh.reset(seed=3)
     t0 = fresh.unwrapped.data.time  # the reset settles the wrist first: an episode starts at t0, not at 0
     fresh.close()
@@ -77,7 +77,7 @@ def test_viewer_runs_under_xvfb_and_exits():
     _xvfb()
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
     res = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24", sys.executable, "-m", "vswrist_gym.cli",
-                          "view", "--task", "VSWrist/Polish-v0", "--duration", "4", "--speed", "2"],
+                          "view", "--task", "VSWrist/Polish-v1", "--duration", "4", "--speed", "2"],
                          capture_output=True, text=True, timeout=180, env=env)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     m = re.search(r"(\d+) control steps \(([\d.]+) s simulated\), (\d+) frames, (\d+) finished episodes", res.stdout)

@@ -1,6 +1,6 @@
 """vswrist-gym: the VS-Wrist variable-stiffness wrist as a MuJoCo simulator and Gymnasium environments.
 
-Importing the package registers the environment ids (``VSWrist/<Task>-v0``) and nothing else: the entry
+Importing the package registers the environment ids (``VSWrist/<Task>-vN``) and nothing else: the entry
 points are strings, so MuJoCo, the simulator and torch are imported only when an environment is made.
 """
 
@@ -26,33 +26,86 @@ if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ and not (
 ENV_IDS = {
     "VSWrist/LoadHold-v0": "vswrist_gym.envs.load_hold:LoadHoldEnv",
     "VSWrist/Polish-v0": "vswrist_gym.envs.polish:PolishEnv",
+    "VSWrist/Polish-v1": "vswrist_gym.envs.polish:PolishEnv",
     "VSWrist/Impact-v0": "vswrist_gym.envs.impact:ImpactEnv",
     "VSWrist/Insertion-v0": "vswrist_gym.envs.insertion:InsertionEnv",
     "VSWrist/Drill-v0": "vswrist_gym.envs.drill:DrillEnv",
     "VSWrist/Hammer-v0": "vswrist_gym.envs.hammer:HammerEnv",
 }
+# What an older version fixes over its task's config files (``id_config`` of ``VSWristEnv``; the caller's config
+# still applies on top). The newest version of a task is its config files as they stand. CHANGELOG.md says what
+# each version changed.
+ENV_KWARGS = {
+    "VSWrist/Polish-v0": {"id_config": {"task": {"contact_force": "last_substep"}}},  # the touch sensor's sample
+}
 
-TASKS = tuple(i.split("/")[1].removesuffix("-v0") for i in ENV_IDS)  # ("LoadHold", ...): the short names CLIs take
+
+def _split(env_id: str) -> tuple[str, int]:
+    short, version = env_id.split("/")[1].rsplit("-v", 1)
+    return short, int(version)
+
+
+# the newest version of each task, in ENV_IDS order: what a short name ('Polish') means everywhere
+LATEST = {}
+for _id in ENV_IDS:
+    _short, _v = _split(_id)
+    if _short not in LATEST or _v > _split(LATEST[_short])[1]:
+        LATEST[_short] = _id
+TASKS = tuple(LATEST)  # ("LoadHold", ...): the short names CLIs take
 
 
 class TaskNameError(argparse.ArgumentTypeError, ValueError):
     """An unknown task name (a ValueError; argparse prints its message as it is)."""
 
 
+def _unknown(name: str) -> TaskNameError:
+    return TaskNameError(f"unknown task {name!r}; choose one of {', '.join(TASKS)} "
+                         f"(or its full id, e.g. {next(iter(ENV_IDS))})")
+
+
 def task_name(name: str) -> str:
-    """A task's short name from either form every command accepts: 'Polish' or its full id 'VSWrist/Polish-v0'."""
+    """A task's short name from either form every command accepts: 'Polish' or a full id 'VSWrist/Polish-v1'
+    (any registered version)."""
     short = name.removeprefix("VSWrist/")
     full = f"VSWrist/{short}"
     if full in ENV_IDS:
-        short = short.rsplit("-v", 1)[0]
+        short = _split(full)[0]
     if short not in TASKS:
-        raise TaskNameError(f"unknown task {name!r}; choose one of {', '.join(TASKS)} "
-                                         f"(or its full id, e.g. {next(iter(ENV_IDS))})")
+        raise _unknown(name)
     return short
+
+
+def resolve_id(name: str) -> str:
+    """The registered id a task name means: a short name ('Polish') is its task's newest version
+    ('VSWrist/Polish-v1'); a full id ('VSWrist/Polish-v0') is itself."""
+    short = name.removeprefix("VSWrist/")
+    if f"VSWrist/{short}" in ENV_IDS:
+        return f"VSWrist/{short}"
+    if short in LATEST:  # 'Polish' or 'VSWrist/Polish'
+        return LATEST[short]
+    raise _unknown(name)
+
+
+def newest_task_name(name: str) -> str:
+    """``task_name`` for the tools that run each task's newest version (bench, probe, pictures, ...): a full id
+    of an older version is refused rather than silently replaced by the newest."""
+    short = task_name(name)
+    if resolve_id(name) != LATEST[short]:
+        raise TaskNameError(f"{name} is not the newest version of {short}; this tool runs {LATEST[short]} "
+                            f"(give {short!r})")
+    return short
+
+
+def vector_entry_name(env_id: str) -> str:
+    """The name in ``vswrist_gym.envs.batch`` of an id's vector entry point ('VSWrist/Polish-v1' ->
+    'PolishV1VectorEnv')."""
+    short, version = _split(env_id)
+    return f"{short}V{version}VectorEnv"
+
 
 for _id, _entry in ENV_IDS.items():
     if _id not in registry:
         # episodes end by truncation inside the environment (episode_s of simulated time), so no TimeLimit
         # vector_entry_point: gym.make_vec(id, N) steps N worlds in one process, physics on threads
-        register(id=_id, entry_point=_entry,
-                 vector_entry_point=f"vswrist_gym.envs.batch:{_id.split('/')[1].removesuffix('-v0')}VectorEnv")
+        register(id=_id, entry_point=_entry, kwargs=ENV_KWARGS.get(_id, {}),
+                 vector_entry_point=f"vswrist_gym.envs.batch:{vector_entry_name(_id)}")

@@ -6,7 +6,8 @@ happen inside the recording) and one forced divergence (the joint velocities are
 ``DIVERGE_AT``, so MuJoCo reports bad velocities and the env must terminate with the penalty), and stores the
 observations, rewards, terminations, truncations and the numeric ``info`` entries. The default output,
 ``tests/reference/trajectories.npz``, was recorded from the code before the batched core existed (Polish from
-that code plus its period-mean contact force, the one intended change; the other tasks' records were identical);
+that code plus its period-mean contact force, the one intended change, so VSWrist/Polish-v1; the other tasks'
+records were identical); each task runs as its newest version;
 ``tests/test_batch.py`` replays the same protocol and compares to it.
 """
 
@@ -81,7 +82,7 @@ def machine() -> str:
 def main(argv=None) -> int:
     import gymnasium as gym
 
-    import vswrist_gym  # noqa: F401
+    import vswrist_gym
 
     argv = sys.argv[1:] if argv is None else argv
     out = Path(argv[0]) if argv else Path(__file__).with_name("trajectories.npz")
@@ -89,7 +90,7 @@ def main(argv=None) -> int:
     for task in TASKS:
         for seed in SEEDS:
             for policy in ("random", "analytic"):
-                env = gym.make(f"VSWrist/{task}-v0", config=CONFIG)
+                env = gym.make(vswrist_gym.LATEST[task], config=CONFIG)
                 rec = run(env, lambda e: e.unwrapped.data, task, seed, policy)
                 env.close()
                 for k, v in rec.items():

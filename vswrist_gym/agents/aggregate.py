@@ -42,7 +42,7 @@ def _rliable():
 
 
 def _short(task: str) -> str:
-    """'VSWrist/Polish-v0' -> 'Polish'; short names pass through."""
+    """'VSWrist/Polish-v1' -> 'Polish'; short names pass through."""
     return task.split("/")[-1].split("-v")[0]
 
 

@@ -413,7 +413,7 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vswrist compare", description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
+    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold: its newest version)")
     p.add_argument("--algos", nargs="+", choices=ALGO_NAMES, default=list(ALGO_NAMES))
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
                    help="training and evaluation seeds (default 0 1 2)")

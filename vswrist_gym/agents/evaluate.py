@@ -2,7 +2,7 @@
 
 Examples:
     vswrist evaluate --task LoadHold --agent runs/loadhold_ppo_0 --episodes 10 --seeds 0 1 2 --out eval/ppo
-    vswrist evaluate --task Polish --agent logs/ppo/VSWrist-Polish-v0_1 --seeds 0 --out eval/zoo   # RL Zoo run
+    vswrist evaluate --task Polish --agent logs/ppo/VSWrist-Polish-v1_1 --seeds 0 --out eval/zoo   # RL Zoo run
     vswrist evaluate --task LoadHold --agent analytic:0.5 --episodes 10 --seeds 0 1 2 --out eval/analytic_0.5
 
 `--out` is checked before the first episode (writable, and either new, empty or an earlier evaluation's folder);
@@ -72,7 +72,8 @@ class AgentSpec:
 
     def check_task(self, env_id: str) -> None:
         if self.trained is not None and self.trained.env_id != env_id:
-            raise RunDirError(f"{self.text} was trained on {self.trained.env_id}, not on {env_id}")
+            raise RunDirError(f"{self.text} was trained on {self.trained.env_id}, not on {env_id} "
+                              f"(give --task {self.trained.env_id})")
 
     def make(self, env):
         """Build the agent for `env` (the analytic agent reads the env's action mapping)."""
@@ -135,9 +136,9 @@ def format_summary(summary: dict) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vswrist evaluate", description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
+    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold: its newest version)")
     p.add_argument("--agent", required=True,
-                   help="RUN_DIR (from vswrist train), an RL Zoo experiment folder (logs/ppo/VSWrist-Polish-v0_1), "
+                   help="RUN_DIR (from vswrist train), an RL Zoo experiment folder (logs/ppo/VSWrist-Polish-v1_1), "
                         "a model file in either, 'pretrained:TASK[:TRACK]' (a shipped policy), 'analytic' or "
                         "'analytic:STIFFNESS'")
     p.add_argument("--episodes", type=int, default=5, help="episodes per seed (default 5)")

@@ -668,7 +668,7 @@ _ZooYamlLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collection
 
 def zoo_params_folder(folder: Path) -> Path | None:
     """The parameters folder (config.yml, args.yml, vecnormalize.pkl) of an RL Zoo experiment folder such as
-    logs/ppo/VSWrist-Polish-v0_1, or None when `folder` is not one."""
+    logs/ppo/VSWrist-Polish-v1_1, or None when `folder` is not one."""
     folder = Path(folder)
     if not folder.is_dir():
         return None

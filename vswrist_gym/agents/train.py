@@ -34,16 +34,18 @@ EVAL_SEED_OFFSET = 10_000  # periodic-evaluation environments never share seeds 
 
 
 def task_id(name: str) -> str:
-    """Accept a full id ('VSWrist/Polish-v0', 'Pendulum-v1') or a VSWrist short name ('Polish')."""
+    """Accept a full id ('VSWrist/Polish-v0', 'Pendulum-v1') or a VSWrist short name ('Polish': its newest
+    version, 'VSWrist/Polish-v1')."""
     import gymnasium as gym
 
-    import vswrist_gym  # noqa: F401  (registers the VSWrist/ ids)
+    import vswrist_gym  # registers the VSWrist/ ids
 
     if name in gym.registry:
         return name
-    for candidate in (f"VSWrist/{name}-v0", f"VSWrist/{name}"):
-        if candidate in gym.registry:
-            return candidate
+    if name in vswrist_gym.LATEST:
+        return vswrist_gym.LATEST[name]
+    if f"VSWrist/{name}" in gym.registry:
+        return f"VSWrist/{name}"
     check_env_id(name)  # raises a ConfigError listing the registered tasks
     return name
 
@@ -294,7 +296,7 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vswrist train", description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold)")
+    p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold: its newest version)")
     p.add_argument("--algo", required=True, choices=ALGO_NAMES)
     p.add_argument("--config", help="hyperparameter YAML keyed by env id (default: the packaged configs/<algo>.yaml)")
     p.add_argument("--timesteps", type=int, help="total training steps (overrides n_timesteps)")

@@ -9,6 +9,6 @@
 * ``shared``: what tasks share (scene helpers, hand geometry, time profiles); ``config``: the YAML settings;
 * one module per task (``load_hold``, ``polish``, ``impact``, ``insertion``, ``drill``, ``hammer``).
 
-Make them with ``gymnasium.make("VSWrist/<Task>-v0")`` or ``gymnasium.make_vec(id, N)`` after
+Make them with ``gymnasium.make("VSWrist/<Task>-vN")`` or ``gymnasium.make_vec(id, N)`` after
 ``import vswrist_gym``.
 """

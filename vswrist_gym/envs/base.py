@@ -38,7 +38,7 @@ from gymnasium.error import ResetNeeded
 from ..params import load_params
 from ..stiffness import spring_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
-from .config import EnvConfigError, load_env_config, validate_task
+from .config import EnvConfigError, load_env_config, merge, validate_task
 from .observations import ObservationsMixin
 from .randomization import RandomizationMixin
 from .rewards import COMMON_REWARD_TERMS, RewardsMixin, wrap_angle
@@ -69,9 +69,9 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
     (which also gives it ``gym.make_vec``). The subclass sets
 
     * ``task`` (the config file stem), ``task_id``, ``summary``, ``success_text`` (formatted with the task
-      settings), ``task_spec`` (name -> ("number" | "interval" | "int_interval", lo, hi): validation of the
-      ``task`` section, read as ``self.tp``), ``task_reward_terms`` (names of its extra reward terms),
-      ``reads_sensors`` (False if it reads only poses: a cheaper update after each step);
+      settings), ``task_spec`` (name -> ("number" | "interval" | "int_interval", lo, hi) or ("choice", names,
+      None): validation of the ``task`` section, read as ``self.tp``), ``task_reward_terms`` (names of its extra
+      reward terms), ``reads_sensors`` (False if it reads only poses: a cheaper update after each step);
 
     and implements the hooks, each for one world (``self`` is the world; a batch calls them world by world, so
     they may keep episode state on ``self`` and draw only from the ``rng`` they are given):
@@ -120,17 +120,23 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._spec = value
 
     # ------------------------------------------------------------------ construction
-    def __init__(self, render_mode: str | None = None, config: Mapping[str, Any] | None = None, **overrides: Any):
+    def __init__(self, render_mode: str | None = None, config: Mapping[str, Any] | None = None, *,
+                 id_config: Mapping[str, Any] | None = None, **overrides: Any):
+        """``config`` and ``overrides``: settings over the task's config files. ``id_config``: what the registered
+        id fixes (``vswrist_gym.ENV_KWARGS``: an older version of a task), applied under the caller's settings."""
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
                              f"got {render_mode!r}")
         if config is not None and not isinstance(config, Mapping):
             raise EnvConfigError(f"'config' must be a mapping of settings (e.g. {{'reward': {{'energy': 0.5}}}}), "
                                  f"got {type(config).__name__} {config!r}")
+        if id_config is not None and not isinstance(id_config, Mapping):
+            raise EnvConfigError(f"'id_config' must be a mapping of settings, got {type(id_config).__name__} "
+                                 f"{id_config!r}")
         user = dict(config or {})
         user.update(overrides)
         self._user_config = user
-        cfg = load_env_config(self.task, user)
+        cfg = load_env_config(self.task, merge(id_config, user) if id_config else user)
         self.cfg = cfg
         self.tp = validate_task(cfg["task"], self.task_spec, self.task)
         self.render_mode = render_mode

@@ -87,8 +87,11 @@ class VSWristVectorEnv(VectorEnv):
         cls = _env_class(env_id)
         self.env_id = env_id
         self.num_envs = int(num_envs)
-        self.envs = [cls(render_mode=render_mode, config=config, **overrides) for _ in range(self.num_envs)]
         spec = gym.registry[env_id]
+        # the id's registered kwargs (an older version's id_config), as gym.make(env_id) passes them; make_vec
+        # already merged them into overrides, a direct construction did not
+        kwargs = {**spec.kwargs, **overrides}
+        self.envs = [cls(render_mode=render_mode, config=config, **kwargs) for _ in range(self.num_envs)]
         for e in self.envs:
             e.spec = spec
         first = self.envs[0]
@@ -339,11 +342,10 @@ def _vector_entry(env_id: str):
 
 
 def _register_entries() -> None:
-    from .. import ENV_IDS
+    from .. import ENV_IDS, vector_entry_name
 
     for env_id in ENV_IDS:
-        name = env_id.split("/")[1].removesuffix("-v0")
-        globals()[f"{name}VectorEnv"] = _vector_entry(env_id)
+        globals()[vector_entry_name(env_id)] = _vector_entry(env_id)
 
 
 _register_entries()

@@ -191,7 +191,8 @@ def validate_common(cfg: dict, defaults: Mapping[str, Any]) -> None:
 
 
 def validate_task(cfg_task: Mapping[str, Any], spec: Mapping[str, tuple], task: str) -> dict:
-    """Check a task section against ``spec``: name -> ("number"|"interval"|"int_interval", lo, hi)."""
+    """Check a task section against ``spec``: name -> ("number"|"interval"|"int_interval", lo, hi) or
+    ("choice", allowed names, None)."""
     _keys("task.", cfg_task, spec)
     missing = sorted(set(spec) - set(cfg_task))
     if missing:
@@ -205,6 +206,8 @@ def validate_task(cfg_task: Mapping[str, Any], spec: Mapping[str, tuple], task: 
             out[key] = interval(where, cfg_task[key], lo, hi)
         elif kind == "int_interval":
             out[key] = interval(where, cfg_task[key], lo, hi, integer=True)
+        elif kind == "choice":
+            out[key] = choice(where, cfg_task[key], lo)
         else:  # pragma: no cover - programming error
             raise AssertionError(kind)
     return out

@@ -1,4 +1,4 @@
-"""``VSWrist/Polish-v0``: press a polishing tool on a surface of uncertain height and tilt while sweeping.
+"""``VSWrist/Polish-v1``: press a polishing tool on a surface of uncertain height and tilt while sweeping.
 
 The tool (a capsule, tip radius ``tool_radius``) sweeps sinusoidally in flexion/extension over a flat surface
 below it (normal along +Z_b, radial/ulnar deviation presses the tool down). The posture reference presses
@@ -11,11 +11,13 @@ on a soft wrist (Phan et al. 2020: human polishers stiffen the wrist as the forc
 
 Success: the force is in band in at least ``success_fraction`` of the steps after ``settle_s``.
 
-The normal force is the mean over the control period's physics substeps of the contact force the surface
-exerts on the tool, not one sample: while the tool slides with friction its tip chatters at about 100 Hz
-by tens of micrometres, and the near-rigid contact then lets go for single 1 ms substeps (gone without
-friction or without the sweep; docs/environments.md), so the touch sensor's end-of-period sample read 0 N on
-15-25 % of the steps while the period's mean stays at 5-8 N.
+``VSWrist/Polish-v1`` (``task.contact_force: period_mean``) reads the normal force as the mean over the control
+period's physics substeps of the contact force the surface exerts on the tool, not one sample: while the tool
+slides with friction its tip chatters at about 100 Hz by tens of micrometres, and the near-rigid contact then lets
+go for single 1 ms substeps (gone without friction or without the sweep; docs/environments.md), so the touch
+sensor's end-of-period sample read 0 N on 15-25 % of the steps while the period's mean stays at 5-8 N.
+``VSWrist/Polish-v0`` (``last_substep``) keeps that sample, so that results made with it stay reproducible; the
+two differ in nothing else.
 """
 
 from __future__ import annotations
@@ -29,11 +31,12 @@ from .base import VSWristEnv
 from .shared import FINGER_END, PeriodMeanForce, add_mocap_box_body, quat_from_matrix, rot_x, smoothstep
 
 SURFACE_HALF = (0.06, 0.16, 0.01)  # m, half sizes of the surface slab
+# task.contact_force -> the id whose force reading it is (CHANGELOG.md)
+CONTACT_FORCE_IDS = {"period_mean": "VSWrist/Polish-v1", "last_substep": "VSWrist/Polish-v0"}
 
 
 class PolishEnv(PeriodMeanForce, VSWristEnv):
     task = "polish"
-    task_id = "VSWrist/Polish-v0"
     summary = "sweep a polishing tool over a surface of uncertain height and tilt, holding a target force per pass"
     success_text = ("normal force within {force_tolerance:g} N of the pass's target force in "
                     ">= {success_fraction:.0%} of the steps after {settle_s:g} s")
@@ -53,6 +56,7 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
         "success_fraction": ("number", 0.0, 1.0),
         "settle_s": ("number", 0.0, 600.0),
         "friction": ("number", 0.0, 5.0),
+        "contact_force": ("choice", tuple(CONTACT_FORCE_IDS), None),
     }
     task_reward_terms = ("force_band",)
     _pass_start = np.zeros(1)
@@ -85,6 +89,16 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
 
     def _is_force_contact(self, c) -> bool:
         return c.geom1 == self._surface_geom or c.geom2 == self._surface_geom
+
+    @property
+    def task_id(self) -> str:
+        return CONTACT_FORCE_IDS[self.tp["contact_force"]]
+
+    def _contact_force(self) -> float:
+        mean = super()._contact_force()  # the period's mean; restarts its sums either way
+        if self.tp["contact_force"] == "last_substep":
+            return float(self.data.sensordata[self._touch_adr])  # the sensors are current after a step
+        return mean
 
     def _task_reset(self, rng):
         self._rud_c = float(rng.uniform(*self.tp["contact_rud"]))

@@ -31,7 +31,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import LATEST, TASKS, newest_task_name
 
 
 def _pin_one_core() -> int | None:
@@ -91,7 +91,7 @@ def bench_task(name: str, steps: int, repeats: int, breakdown: bool = False) -> 
 
     import vswrist_gym  # noqa: F401  (registers the ids)
 
-    env = gym.make(f"VSWrist/{name}-v0")
+    env = gym.make(LATEST[name])
     u = env.unwrapped
     timer = _Timer(u.sim.step)
     u.sim.step = timer
@@ -155,7 +155,7 @@ def _make_env(name: str):
 
         import vswrist_gym  # noqa: F401
 
-        return gym.make(f"VSWrist/{name}-v0")
+        return gym.make(LATEST[name])
     return thunk
 
 
@@ -301,13 +301,13 @@ def bench_single_old_new(name: str, steps: int, repeats: int) -> dict:
 
     import vswrist_gym  # noqa: F401
 
-    env = gym.make(f"VSWrist/{name}-v0")
+    env = gym.make(LATEST[name])
     u = env.unwrapped
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (steps,) + env.action_space.shape).astype(np.float32)
     new_step = u.step
     old_step = types.MethodType(_legacy_step, u)
-    batch = gym.make_vec(f"VSWrist/{name}-v0", num_envs=1, vectorization_mode="vector_entry_point", threads=1)
+    batch = gym.make_vec(LATEST[name], num_envs=1, vectorization_mode="vector_entry_point", threads=1)
     res: dict[str, list] = {"new": [], "old": [], "batch1": []}
 
     def run_single(step) -> float:
@@ -347,7 +347,7 @@ def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> di
 
     import vswrist_gym  # noqa: F401
 
-    venv = gym.make_vec(f"VSWrist/{name}-v0", num_envs=n, vectorization_mode="vector_entry_point", threads=threads)
+    venv = gym.make_vec(LATEST[name], num_envs=n, vectorization_mode="vector_entry_point", threads=threads)
     timers = []
     for e in venv.unwrapped.envs:
         t = _Timer(e.sim.step)
@@ -385,7 +385,7 @@ import gymnasium as gym, numpy as np, vswrist_gym, stable_baselines3
 from vswrist_gym.tools.bench import _rss_mib
 import vswrist_gym.envs.batch
 base = _rss_mib()
-v = gym.make_vec("VSWrist/{name}-v0", num_envs={n}, vectorization_mode="vector_entry_point")
+v = gym.make_vec("{LATEST[name]}", num_envs={n}, vectorization_mode="vector_entry_point")
 v.reset(seed=0)
 for _ in range(10):
     v.step(v.action_space.sample())
@@ -400,7 +400,7 @@ print(_rss_mib() - base, _rss_mib())
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist bench-env", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=newest_task_name,
                     help=f"short names or full ids (default all: {' '.join(TASKS)})")
     ap.add_argument("--steps", type=int, default=3000, help="env steps per timed run (default 3000)")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per environment; the median is reported")

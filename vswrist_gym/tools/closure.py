@@ -19,7 +19,7 @@ import argparse
 
 import numpy as np
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import LATEST, TASKS, newest_task_name
 
 AGENTS = ("reference", "random", "bangbang")
 
@@ -32,7 +32,7 @@ def closure_run(task: str, agent: str, params: str, steps: int, seed: int = 0) -
 
     if agent not in AGENTS:
         raise ValueError(f"agent must be one of {list(AGENTS)}, got {agent!r}")
-    env = gym.make(f"VSWrist/{task}-v0", params=params)
+    env = gym.make(LATEST[task], params=params)
     u = env.unwrapped
     target = u.obs_slices["target"]
     rng = np.random.default_rng(seed)
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=300, help="env steps per task, agent and seed (default 300)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="seeds (default 0-4)")
-    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=newest_task_name,
                     help=f"short names or full ids (default all: {' '.join(TASKS)})")
     ap.add_argument("--agents", nargs="+", default=list(AGENTS), choices=AGENTS)
     ap.add_argument("--params", nargs="+", default=["paper_knm", "paper_knm_fine"],

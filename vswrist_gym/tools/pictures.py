@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import LATEST, TASKS, newest_task_name
 
 # The control step at which each task's object is in view and in use: the tool on the surface (Polish), against
 # the obstacle (Impact), in the hole (Insertion), the drill engaged (Drill), the load hanging (LoadHold) (50 Hz);
@@ -32,7 +32,7 @@ def frame(task: str, step: int | None = None, seed: int = 0, width: int | None =
     from vswrist_gym.agents.analytic import AnalyticAgent
 
     render = {k: v for k, v in (("width", width), ("height", height)) if v is not None}
-    env = gym.make(f"VSWrist/{task}-v0", render_mode="rgb_array", config={"render": render} if render else None)
+    env = gym.make(LATEST[task], render_mode="rgb_array", config={"render": render} if render else None)
     try:
         agent = AnalyticAgent(env)
         obs, _ = env.reset(seed=seed)
@@ -55,7 +55,7 @@ def save_png(path: Path, rgb: np.ndarray, colours: int = 256) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m vswrist_gym.tools.pictures", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="docs/figures/tasks", help="output folder (default docs/figures/tasks)")
-    ap.add_argument("--tasks", nargs="+", type=task_name, default=list(TASKS),
+    ap.add_argument("--tasks", nargs="+", type=newest_task_name, default=list(TASKS),
                     help=f"short names or full ids (default all: {' '.join(TASKS)})")
     ap.add_argument("--seed", type=int, default=0, help="episode seed (default 0)")
     args = ap.parse_args(argv)

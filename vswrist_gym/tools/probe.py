@@ -37,7 +37,7 @@ import argparse
 
 import numpy as np
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import LATEST, TASKS, newest_task_name
 
 CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 ERR_ON = 0.03   # rad
@@ -227,7 +227,7 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
 
     import vswrist_gym  # noqa: F401
 
-    env = gym.make(f"VSWrist/{task}-v0", config=config or {})
+    env = gym.make(LATEST[task], config=config or {})
     seeds = range(seed0, seed0 + episodes)
     out = {"task": task, "constant": {}, "terms": {}, "returns": {}}
 
@@ -330,8 +330,8 @@ def success_probe(task: str, episodes: int, seed0: int = 1000, config: dict | No
     import vswrist_gym  # noqa: F401
 
     config = dict(config or {})
-    env = gym.make(f"VSWrist/{task}-v0", config=config)
-    res = gym.make(f"VSWrist/{task}-v0", config={**config, "action_mode": "residual"})
+    env = gym.make(LATEST[task], config=config)
+    res = gym.make(LATEST[task], config={**config, "action_mode": "residual"})
     seeds = range(seed0, seed0 + episodes)
     out, insertion = {}, {}
 
@@ -395,7 +395,7 @@ def print_success(tasks, episodes: int, seed0: int, config: dict) -> None:
             print(f"{agent:<27}{sum(r for r, _, _ in rows):>5}/{len(rows):<3}{sum(s for _, s, _ in rows):>4}/"
                   f"{len(rows):<3}{lo:>16}{hi:>10}")
     for t in tasks:
-        env = gym.make(f"VSWrist/{t}-v0", config=config)
+        env = gym.make(LATEST[t], config=config)
         print(f"{t}: {env.unwrapped.success_description()}; baseline s={env.unwrapped.cfg['residual']['stiffness_nominal']:+.1f}")
         env.close()
 
@@ -404,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=10)
     ap.add_argument("--seed0", type=int, default=1000, help="first episode seed (episodes seed0, seed0 + 1, ...)")
-    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=newest_task_name,
                     help=f"short names or full ids (default all: {' '.join(TASKS)})")
     ap.add_argument("--energy-weight", type=float, default=None, help="override reward.energy")
     ap.add_argument("--terms", action="store_true",

@@ -267,6 +267,7 @@ def card_markdown(card: dict) -> str:
         "",
         f"`--agent pretrained:{card['task']}:{card['track']}` in `vswrist evaluate`, `vswrist video`, `vswrist view`.",
         "",
+        *([card["env_id_note"], ""] if card.get("env_id_note") else []),
         "## Training",
         "",
         f"- command: `{card['training_command']}`",

@@ -43,7 +43,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import LATEST, TASKS, newest_task_name
 
 AGENTS = ("random", "baseline")
 # every randomisation term on: the device terms rebuild the simulator at each reset (the scale ranges and
@@ -165,7 +165,7 @@ def _build(cell: Cell) -> None:
     from vswrist_gym.agents.analytic import AnalyticAgent
 
     kwargs = {"config": {"randomize": ALL_RANDOM}} if cell.rebuild else {}
-    env = gym.make(f"VSWrist/{cell.task}-v0", **kwargs)
+    env = gym.make(LATEST[cell.task], **kwargs)
     if cell.agent == "random":
         rng = np.random.default_rng(cell.seed)
         low, high, shape = env.action_space.low, env.action_space.high, env.action_space.shape
@@ -312,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m vswrist_gym.tools.soak",
                                 description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--steps", type=int, default=1_000_000, help="environment steps in all (default 1,000,000)")
-    p.add_argument("--tasks", nargs="+", default=list(TASKS), type=task_name,
+    p.add_argument("--tasks", nargs="+", default=list(TASKS), type=newest_task_name,
                    help=f"short names or full ids (default all: {' '.join(TASKS)})")
     p.add_argument("--seed", type=int, default=0, help="first seed (each environment gets the next one)")
     p.add_argument("--warmup", type=float, default=WARMUP,

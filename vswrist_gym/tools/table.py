@@ -21,7 +21,30 @@ def _envs():
     return [gym.make(env_id).unwrapped for env_id in vswrist_gym.ENV_IDS]
 
 
+def _older(e) -> str:
+    """The task cell of an older version: its newest version and the settings the older id fixes."""
+    import vswrist_gym
+
+    short = e.task_id.split("/")[1].rsplit("-v", 1)[0]
+
+    def flat(d, where=""):
+        return [x for k, v in d.items()
+                for x in (flat(v, f"{where}{k}.") if isinstance(v, dict) else [f"`{where}{k}: {v}`"])]
+
+    fixed = ", ".join(flat(vswrist_gym.ENV_KWARGS[e.task_id]["id_config"]))
+    return f"`{vswrist_gym.LATEST[short]}` with {fixed} (an older version, kept registered; CHANGELOG.md)"
+
+
+def _newest(envs):
+    import vswrist_gym
+
+    return [e for e in envs if e.task_id in vswrist_gym.LATEST.values()]
+
+
 def env_table(envs) -> str:
+    """Every registered id, an older version's row naming what it changes."""
+    import vswrist_gym
+
     rows = ["| id | task | action | observation terms | reward terms (weight) | success | episode |",
             "|---|---|---|---|---|---|---|"]
     for e in envs:
@@ -29,16 +52,18 @@ def env_table(envs) -> str:
         rew = ", ".join(f"`{k}` ({w:g})" for k, w in e.reward_weights.items())
         act = f"`{e.cfg['action_mode']}` Box(-1, 1, ({e.action_space.shape[0]},))"
         ep = f"{e.cfg['episode_s']:g} s = {e.episode_steps} steps at {1 / e.ctrl_dt:g} Hz"
-        rows.append(f"| `{e.task_id}` | {e.summary} | {act} | {obs} ({e.obs_size} values) | {rew} | "
+        what = e.summary if e.task_id in vswrist_gym.LATEST.values() else _older(e)
+        rows.append(f"| `{e.task_id}` | {what} | {act} | {obs} ({e.obs_size} values) | {rew} | "
                     f"{e.success_description()} | {ep} |")
     return "\n".join(rows)
 
 
 def obs_table(envs) -> str:
+    envs = _newest(envs)
     used = {}
     for e in envs:
         for t in e.obs_terms:
-            used.setdefault(t.name, []).append(e.task_id.split("/")[1].replace("-v0", ""))
+            used.setdefault(t.name, []).append(e.task_id.split("/")[1].rsplit("-v", 1)[0])
     terms = {}  # every term any task offers: the common ones first, then each task's own
     for e in envs:
         for name, t in e._terms.items():
@@ -54,7 +79,7 @@ def obs_table(envs) -> str:
 def index_table(envs) -> str:
     """Flat-observation indices of every task (the ``obs_slices`` contract)."""
     rows = ["| task | " + " | ".join(["indices"]) + " |", "|---|---|"]
-    for e in envs:
+    for e in _newest(envs):
         parts = ", ".join(f"`{n}` {s.start}:{s.stop}" for n, s in e.obs_slices.items())
         rows.append(f"| `{e.task_id}` | {parts} |")
     return "\n".join(rows)

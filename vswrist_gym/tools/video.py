@@ -8,7 +8,7 @@ Agents:
 * ``random``: uniform random actions;
 * ``analytic`` or ``analytic:STIFFNESS``: the analytic baseline, as ``vswrist evaluate`` runs it;
 * ``pretrained:<Task>[:<track>]``: a policy shipped in the package (``vswrist_gym.pretrained``), as a trained run;
-* a trained run: a ``vswrist train`` run directory or an RL Zoo experiment folder (``logs/ppo/VSWrist-Polish-v0_1``),
+* a trained run: a ``vswrist train`` run directory or an RL Zoo experiment folder (``logs/ppo/VSWrist-Polish-v1_1``),
   or a model file inside either: its deterministic policy with its own normalisation statistics, on the
   environment built with its own ``env_kwargs`` (action mode). A run from another task, a model file outside a run
   folder, or an environment whose settings differ from the run's is a one-line error, never a wrong video.
@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import TASKS, resolve_id
 
 
 def reference_agent(env, stiffness: float):
@@ -54,7 +54,8 @@ def adaptive_agent(env, threshold: float = 0.05):
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
+    ap.add_argument("--task", required=True, type=resolve_id,
+                    help=f"{', '.join(TASKS)} (the newest version), or a full id")
     ap.add_argument("--agent", default="reference",
                     help="reference | adaptive | random | analytic[:S] | pretrained:TASK[:TRACK] | RUN_DIR | "
                          "RL Zoo folder | model file in one")
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     render = {"width": args.width, "height": args.height}
     if args.camera:
         render["camera"] = args.camera
-    env_id = f"VSWrist/{args.task}-v0"
+    env_id = args.task
     builtin = args.agent in ("reference", "adaptive", "random")
     kwargs: dict = {}
     if not builtin:

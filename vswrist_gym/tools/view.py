@@ -21,7 +21,7 @@ import os
 import sys
 import time
 
-from vswrist_gym import TASKS, task_name
+from vswrist_gym import TASKS, resolve_id
 
 KEY_SPACE, KEY_RIGHT, KEY_BACKSPACE = 32, 262, 259  # GLFW key codes, as the viewer's key_callback reports them
 
@@ -157,7 +157,8 @@ class ViewerSession:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist view", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--task", required=True, type=task_name, help=f"{', '.join(TASKS)}, or a full id")
+    ap.add_argument("--task", required=True, type=resolve_id,
+                    help=f"{', '.join(TASKS)} (the newest version), or a full id")
     ap.add_argument("--agent", default="analytic",
                     help="analytic | analytic:STIFFNESS | pretrained:TASK[:TRACK] | RUN_DIR | RL Zoo folder "
                          "(default: analytic)")
@@ -171,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--speed must be a positive number, got {args.speed}")
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         ap.error(f"--duration must be a positive number of seconds, got {args.duration}")
-    env_id = f"VSWrist/{args.task}-v0"
+    env_id = args.task
     try:
         check_display()
         import gymnasium as gym
