@@ -58,7 +58,7 @@ ENERGY_KEYS = {
 }
 # The best constant stiffness command of each variant, measured (python -m vswrist_gym.tools.probe --variant paper
 # --episodes 12, docs/environments.md "Stiffness range"): the residual mode's zero action is that baseline.
-BEST_CONSTANT = {}
+BEST_CONSTANT = {"paper": {"load_hold": 1.0, "polish": 0.5, "impact": 1.0, "insertion": 0.5, "drill": 0.0}}
 DIGITS = 4  # significant digits written to the YAML files
 
 

@@ -449,7 +449,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--headroom", action="store_true",
                     help="print the headroom table (markdown) and Hammer's strike speeds after the usual tables")
     ap.add_argument("--write", default=None, metavar="PATH",
-                    help="with --headroom: rewrite the 'headroom' generated block of PATH (docs/environments.md)")
+                    help="with --headroom: rewrite the 'headroom' generated block of PATH (docs/environments.md); "
+                         "with --variant V, the 'headroom-V' block")
     ap.add_argument("--headroom-json", default=None, metavar="PATH",
                     help="with --headroom: also write the table as JSON for `vswrist aggregate --headroom`")
     args = ap.parse_args(argv)
@@ -505,8 +506,9 @@ def main(argv: list[str] | None = None) -> int:
 
             from .table import update
             path = Path(args.write)
-            path.write_text(update(path.read_text(), {"headroom": table}))
-            print(f"{path}: headroom block updated")
+            block = "headroom" if args.variant is None else f"headroom-{args.variant}"
+            path.write_text(update(path.read_text(), {block: table}))
+            print(f"{path}: {block} block updated")
         if args.headroom_json:
             import json
             from pathlib import Path
