@@ -464,9 +464,12 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--levels {args.levels[0]:g} {args.levels[1]:g}: need -1 <= SOFT <= STIFF <= 1")
     configs = {t: config for t in args.tasks}
     if args.variant is not None:
-        from ..envs.config import merge
+        from ..envs.config import EnvConfigError, merge
         from ..envs.variants import variant_config
-        configs = {t: merge(variant_config(t, args.variant), config) for t in args.tasks}
+        try:
+            configs = {t: merge(variant_config(t, args.variant), config) for t in args.tasks}
+        except EnvConfigError as exc:
+            ap.error(str(exc))
     if args.success:
         if args.variant is not None:
             ap.error("--variant is not supported with --success")
