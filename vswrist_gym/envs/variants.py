@@ -2,7 +2,7 @@
 
 The tasks are sized for ``paper_knm`` (K = 4 N m): loads of newtons and tenths of N m against a coupler stiffness of
 9.4-27 N m/rad at home. The literal ``paper`` springs (K = 4 N mm) give 0.0094-3.0 N m/rad there, a far wider
-ratio (about 300x against 2.9x), but they cannot hold those loads. A variant keeps each task's geometry, motions
+ratio (about 300x against 2.8x), but they cannot hold those loads. A variant keeps each task's geometry, motions
 and timing and scales every load to what the device provides:
 
 * forces and torques (task loads, contact-force targets and bounds, ``scales.force``, the force/torque sensor's
