@@ -41,11 +41,16 @@ from vswrist_gym import LATEST, TASKS, newest_task_name
 
 CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 ERR_ON = 0.03   # rad
-PUSH_ON = 2.0   # N, Insertion rule: the fit resists (bottom force) ...
+# Force thresholds and gains are fractions of the task's own force settings, so that the rules carry over to task
+# variants whose loads are scaled to another device (vswrist_gym.envs.variants); the default tasks get 2 N, 0.5 N
+# and 0.02 /N.
+PUSH_ON = 1.0 / 3.0   # Insertion rule: the fit resists (bottom force above this x task.fit_force[0]) ...
 PUSH_S = 0.6    # s, ... and the rule is stiff this long from then
 ORACLE_LOW = 0.0  # stiffness command of the oracle when the task needs no stiffness (the soft end rings)
 IMPACT_FREE = 1.0    # Impact rule and oracle: stiffness command in free motion
 IMPACT_SOFT_S = 0.3  # s, the Impact rule stays soft this long after the last contact
+IMPACT_TOUCH = 0.02  # Impact rule: a contact is felt above this x task.success_force
+POLISH_GAIN = 0.04   # Polish rule: integral gain, stiffness command per N of force error x task.force_tolerance
 IMPACT_MARGIN = 0.1  # Impact oracle: soft from this fraction of the path before the (hidden) wall
 SLEW = 4.0      # 1/s, largest rate of change of the stiffness command (full range in 0.5 s)
 HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last exceeded ERR_ON
@@ -72,6 +77,7 @@ def adaptive_policy(env):
     hold_steps = int(round(HOLD_S / u.ctrl_dt))
     push_steps = int(round(PUSH_S / u.ctrl_dt))
     impact_soft = int(round(IMPACT_SOFT_S / u.ctrl_dt))
+    tp = u.tp
 
     def act(obs):
         obs = np.asarray(obs, dtype=float)
@@ -83,7 +89,8 @@ def adaptive_policy(env):
             s = 1.0 if state["hold"] > 0 else -1.0
         elif task == "polish":
             goal = float(obs[sl["force_target"]][0])
-            state["s"] = float(np.clip(state["s"] + 0.02 * (goal - contact), -1.0, 1.0))
+            gain = POLISH_GAIN / tp["force_tolerance"]
+            state["s"] = float(np.clip(state["s"] + gain * (goal - contact), -1.0, 1.0))
             s = state["s"]
         elif task == "hammer":
             state["go"] = state.get("go", False) or u._t >= u.tp["swing_start_s"] - 1e-9
@@ -91,10 +98,11 @@ def adaptive_policy(env):
         elif task == "impact":
             # stiff in free motion (the heavy tool's sag costs tracking), soft as soon as and for as long as the
             # touch sensor shows a contact, and for IMPACT_SOFT_S after it
-            state["soft"] = impact_soft if contact > 0.5 else max(state["soft"] - 1, 0)
+            touch = IMPACT_TOUCH * tp["success_force"]
+            state["soft"] = impact_soft if contact > touch else max(state["soft"] - 1, 0)
             s = -1.0 if state["soft"] > 0 else IMPACT_FREE
         else:  # insertion: count down from the first push on the fit
-            if state["push"] is None and float(obs[sl["bottom_force"]][0]) > PUSH_ON:
+            if state["push"] is None and float(obs[sl["bottom_force"]][0]) > PUSH_ON * tp["fit_force"][0]:
                 state["push"] = push_steps
             elif state["push"]:
                 state["push"] -= 1
@@ -177,6 +185,21 @@ def optimised_schedule(env_id: str, config: dict | None = None, train_seeds: int
     return _SCHEDULES[key]
 
 
+def within(policy, levels: tuple[float, float]):
+    """``policy`` with its stiffness command (the last action entry, mode ``posture_stiffness``) mapped linearly
+    from [-1, 1] onto ``levels`` = (soft, stiff): the rule's or oracle's soft and stiff ends moved inside the
+    command range, for a device whose softest commands cannot hold the posture (the literal ``paper`` springs)."""
+    lo, hi = levels
+    if (lo, hi) == (-1.0, 1.0):
+        return policy
+
+    def act(obs):
+        a = np.array(policy(obs), dtype=np.float32)
+        a[-1] = lo + 0.5 * (float(a[-1]) + 1.0) * (hi - lo)
+        return a
+    return act
+
+
 def constant_policy(env, s: float):
     u = env.unwrapped
     sl = u.obs_slices["target"]
@@ -219,10 +242,12 @@ def evaluate(env, policy_factory, seeds, terms: dict | None = None, returns: lis
     return float(np.mean(totals)), float(np.mean(successes))
 
 
-def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None, oracle: bool = True) -> dict:
+def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = None, oracle: bool = True,
+          levels: tuple[float, float] = (-1.0, 1.0)) -> dict:
     """Every constant command, the rule and (``oracle``) the oracle or, for Hammer, the optimised schedule (whose
     optimisation takes minutes) on episodes ``seed0 ...``: mean return and success rate, per-episode returns, and
-    paired differences to the best constant."""
+    paired differences to the best constant. ``levels``: the rule's and the oracle's stiffness commands mapped
+    from [-1, 1] onto [soft, stiff] (``within``)."""
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401
@@ -245,9 +270,9 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
 
     for s in CONSTANT_COMMANDS:
         out["constant"][s] = run(f"s={s:+.1f}", lambda s=s: constant_policy(env, s))
-    out["adaptive"] = run("rule", lambda: adaptive_policy(env))
+    out["adaptive"] = run("rule", lambda: within(adaptive_policy(env), levels))
     if oracle:
-        out["oracle"] = run("oracle", lambda: oracle_policy(env))
+        out["oracle"] = run("oracle", lambda: within(oracle_policy(env), levels))
     best = max(out["constant"], key=lambda s: out["constant"][s][0])
     out["best_constant"] = best
     out["gain"] = out["adaptive"][0] - out["constant"][best][0]
@@ -415,10 +440,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--params", default=None, help="device preset (params), e.g. paper_knm or paper, or a YAML path")
     ap.add_argument("--config", default=None, metavar="JSON",
                     help='environment settings merged into every task\'s, e.g. \'{"task": {"swing_speed": 0.5}}\'')
+    ap.add_argument("--variant", default=None, metavar="PRESET",
+                    help="run each task's variant on device preset PRESET with its loads scaled to it "
+                         "(configs/envs/variants/PRESET_<task>.yaml, vswrist_gym.envs.variants); --config and "
+                         "--params apply on top")
+    ap.add_argument("--levels", nargs=2, type=float, default=(-1.0, 1.0), metavar=("SOFT", "STIFF"),
+                    help="map the rule's and the oracle's stiffness commands from [-1, 1] onto [SOFT, STIFF]")
     ap.add_argument("--headroom", action="store_true",
                     help="print the headroom table (markdown) and Hammer's strike speeds after the usual tables")
     ap.add_argument("--write", default=None, metavar="PATH",
-                    help="with --headroom: rewrite the 'headroom' generated block of PATH (docs/environments.md)")
+                    help="with --headroom: rewrite the 'headroom' generated block of PATH (docs/environments.md); "
+                         "with --variant V, the 'headroom-V' block")
     ap.add_argument("--headroom-json", default=None, metavar="PATH",
                     help="with --headroom: also write the table as JSON for `vswrist aggregate --headroom`")
     args = ap.parse_args(argv)
@@ -428,7 +460,19 @@ def main(argv: list[str] | None = None) -> int:
         config.update(json.loads(args.config))
     if args.params is not None:
         config["params"] = args.params
+    if not -1.0 <= args.levels[0] <= args.levels[1] <= 1.0:
+        ap.error(f"--levels {args.levels[0]:g} {args.levels[1]:g}: need -1 <= SOFT <= STIFF <= 1")
+    configs = {t: config for t in args.tasks}
+    if args.variant is not None:
+        from ..envs.config import EnvConfigError, merge
+        from ..envs.variants import variant_config
+        try:
+            configs = {t: merge(variant_config(t, args.variant), config) for t in args.tasks}
+        except EnvConfigError as exc:
+            ap.error(str(exc))
     if args.success:
+        if args.variant is not None:
+            ap.error("--variant is not supported with --success")
         print_success(args.tasks, args.episodes, args.seed0, config)
         return 0
     cols = "".join(f"{'s=' + format(s, '+.1f'):>16}" for s in CONSTANT_COMMANDS)
@@ -436,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'task':<11}{cols}{'rule':>16}{'oracle':>16}{'rule-best':>10}{'oracle-best':>12}")
     results = []
     for task in args.tasks:
-        r = probe(task, args.episodes, seed0=args.seed0, config=config)
+        r = probe(task, args.episodes, seed0=args.seed0, config=configs[task], levels=tuple(args.levels))
         cells = "".join(f"{r['constant'][s][0]:>9.1f} ({r['constant'][s][1]:.1f})" for s in CONSTANT_COMMANDS)
         print(f"{task:<11}{cells}{r['adaptive'][0]:>9.1f} ({r['adaptive'][1]:.1f}){r['oracle'][0]:>9.1f} "
               f"({r['oracle'][1]:.1f}){r['gain']:>+10.1f}{r['oracle_gain']:>+12.1f}")
@@ -465,8 +509,9 @@ def main(argv: list[str] | None = None) -> int:
 
             from .table import update
             path = Path(args.write)
-            path.write_text(update(path.read_text(), {"headroom": table}))
-            print(f"{path}: headroom block updated")
+            block = "headroom" if args.variant is None else f"headroom-{args.variant}"
+            path.write_text(update(path.read_text(), {block: table}))
+            print(f"{path}: {block} block updated")
         if args.headroom_json:
             import json
             from pathlib import Path
