@@ -75,16 +75,13 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
                                   friction=self.tp["friction"])
         hx, hy, hz = SURFACE_HALF
         self._add_touch_sensor(spec, body, "surface_touch", (hx, hy, hz + 0.01), pos=(0, 0, -hz + 0.01))
+        self._add_contact_meter(spec, body, "task_task_surface_0")
 
     def _scene_ids(self) -> None:
         self._touch_adr = self._sensor_adr("surface_touch")
         self._mocap = int(self.model.body("task_surface").mocapid[0])
         self._surface_geom = int(self.model.geom("task_task_surface_0").id)
-        self._force_sum, self._force_n = 0.0, 0
-        self._cforce = np.zeros(6)
-
-    def _is_force_contact(self, c) -> bool:
-        return c.geom1 == self._surface_geom or c.geom2 == self._surface_geom
+        self._find_contact_meter()
 
     def _task_reset(self, rng):
         self._rud_c = float(rng.uniform(*self.tp["contact_rud"]))
