@@ -123,9 +123,11 @@ class PeriodMeanForce:
 
     The task calls ``_add_contact_meter(spec, body, geom1, geom2)`` in ``_scene`` and ``_find_contact_meter()``
     in ``_scene_ids``, and sets ``self._touch_adr`` (the touch sensor read at reset, before any period ran);
-    ``_on_first_contact(time, pos, vel)`` sees each period's first counted contact."""
+    ``_on_first_contact(time, pos, vel)`` sees each period's first counted contact. ``_last_substep_force()`` is
+    the other reading, the touch sensor at the end of the period."""
 
     _meter_names: tuple = ()
+    _force_sum, _force_n, _touched, _period_ran = 0.0, 0, False, False
 
     def _add_contact_meter(self, spec: mujoco.MjSpec, body, geom1: str, geom2: str | None = None) -> None:
         """Count contacts of geom ``geom1`` with ``geom2`` (None: with anything); ``body`` (an MjsBody) is the body
@@ -157,8 +159,6 @@ class PeriodMeanForce:
             self._meter = self.data.plugin_state[adr:adr + CONTACT_STATE_SIZE]
         self._cforce = np.zeros(6)
         self._vel6 = np.zeros(6)
-        self._force_sum, self._force_n, self._touched = 0.0, 0, False
-        self._period_ran = False
 
     def _reset_state(self) -> None:
         super()._reset_state()
@@ -199,13 +199,17 @@ class PeriodMeanForce:
                 self._force_sum += f[0]
             self._force_n += 1
 
+    def _last_substep_force(self) -> float:
+        """The touch sensor's reading (N) at the state the physics stands in (sensors are current after a step)."""
+        return float(self.data.sensordata[self._touch_adr])
+
     def _contact_force(self) -> float:
         """Mean normal force (N) over the last control period's substeps (at reset, where no period has run: the
         touch sensor's reading). Reads and clears the period's measurements."""
         meter = self._meter
         if meter is not None:
             if not self._period_ran:
-                return float(self.data.sensordata[self._touch_adr])
+                return self._last_substep_force()
             self._period_ran = False
             if meter[2] != 0.0:
                 self._on_first_contact(float(meter[3]), meter[4:7].copy(), meter[7:10].copy())
@@ -213,7 +217,7 @@ class PeriodMeanForce:
             meter[:] = 0.0
             return out
         if self._force_n == 0:
-            return float(self.data.sensordata[self._touch_adr])
+            return self._last_substep_force()
         out = self._force_sum / self._force_n
         self._force_sum, self._force_n, self._touched = 0.0, 0, False
         return out
