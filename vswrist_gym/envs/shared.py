@@ -208,7 +208,7 @@ class PeriodMeanForce:
         touch sensor's reading). Reads and clears the period's measurements."""
         meter = self._meter
         if meter is not None:
-            if not self._period_ran:
+            if not self._period_ran or meter[1] == 0.0:
                 return self._last_substep_force()
             self._period_ran = False
             if meter[2] != 0.0:
