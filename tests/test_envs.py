@@ -663,7 +663,7 @@ def test_spec_max_episode_steps_is_where_episodes_truncate():
 
 def test_polish_force_is_the_period_mean_of_the_substep_contact_forces():
     """Polish's normal force is the mean, over the control period's substeps, of the force the surface's contacts
-    applied (recomputed here from MuJoCo's contact list after each substep), and it does not drop to 0 N while the
+    applied (recomputed here from MuJoCo's contact list after each substep of a replay), and it does not drop to 0 N while the
     tool is pressed on the surface (the touch sensor's end-of-period sample did on 15-25 % of those steps: the
     tool's tip chatters by micrometres while sliding with friction)."""
     import mujoco
@@ -673,14 +673,20 @@ def test_polish_force_is_the_period_mean_of_the_substep_contact_forces():
     env = make("VSWrist/Polish-v1", config={"randomize": {"sensor_noise": {"enabled": False}}})
     u = env.unwrapped
     step, forces, f6 = u.sim.step, [], np.zeros(6)
+    d2 = mujoco.MjData(u.model)
 
     def recording_step(duration, restart_peak=True):
+        # the period replayed on a copy of the world one substep at a time (the env measures inside one
+        # mj_step call): after mj_step(m, d, 1) the contacts and their forces are that substep's
+        mujoco.mj_copyData(d2, u.model, u.data)
+        for _ in range(int(round(duration / u.model.opt.timestep))):
+            mujoco.mj_step(u.model, d2, 1)
+            total = 0.0
+            for i in range(d2.ncon):
+                mujoco.mj_contactForce(u.model, d2, i, f6)
+                total += f6[0]
+            forces.append(total)
         step(duration, restart_peak)
-        total = 0.0
-        for i in range(u.data.ncon):
-            mujoco.mj_contactForce(u.model, u.data, i, f6)
-            total += f6[0]
-        forces.append(total)
     u.sim.step = recording_step
     policy = constant_policy(env, 0.0)
     pressed = []

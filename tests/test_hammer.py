@@ -5,6 +5,7 @@ reach of flailing, and a stiffness schedule beats every constant stiffness."""
 from __future__ import annotations
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 
@@ -61,11 +62,17 @@ def test_strike_speed_is_the_head_speed_just_before_contact():
     u = env.unwrapped
     env.reset(seed=2)
     step, rec = u.sim.step, []
+    m = u.model
+    d2 = mujoco.MjData(m)
 
     def recording_step(duration, restart_peak=True):
+        # the period replayed on a copy of the world one substep at a time, the head's pose at each substep's start
+        mujoco.mj_copyData(d2, m, u.data)
+        for _ in range(int(round(duration / m.opt.timestep))):
+            mujoco.mj_kinematics(m, d2)
+            rec.append((d2.time, float(d2.xpos[u._head_body] @ u._normal)))
+            mujoco.mj_step(m, d2, 1)
         step(duration, restart_peak)
-        # after mj_step the poses are those of the state the substep started from
-        rec.append((u.data.time - duration, float(u.data.xpos[u._head_body] @ u._normal)))
     u.sim.step = recording_step
     info = _episode(env, constant_policy(env, -0.5), 2)
     assert info["struck"]

@@ -398,8 +398,9 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
 
     def _advance_physics(self, duration: float, first: bool) -> None:
         """Advance the physics by ``duration`` within a control period (``first``: its first part, where the
-        loop-closure peak restarts). Tasks that must see every substep (a force averaged over the period, the
-        instant of an impact) override it and step one substep at a time."""
+        loop-closure peak restarts). Runs on a batch's threads: the physics only, one ``mj_step`` call. Tasks that
+        must see every substep (a force averaged over the period, the instant of an impact) measure inside it
+        with a plugin (``shared.PeriodMeanForce``) rather than stepping one substep at a time."""
         if first:
             self.sim.step(duration)
         else:

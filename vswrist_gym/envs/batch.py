@@ -10,10 +10,11 @@ works per world). One ``step`` of the batch:
 3. the Python pre-physics phase of every world (action -> controller -> motor references, task loads);
 4. the physics of all worlds: one control period each, ``mj_step(m, d, nstep)`` per world on a pool of
    ``threads`` threads, each thread a contiguous chunk of worlds. MuJoCo's bindings release the GIL inside
-   ``mj_step``, and the springs' and motors' compiled callbacks (``model.native``) keep no global mutable
-   state (the loop-closure peak lives in each MjData's ``userdata``), so worlds advance in parallel. With the
-   Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would only contend for
-   the GIL: the batch then steps serially;
+   ``mj_step``, and the compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and
+   Polish's and Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable state (theirs
+   lives in each MjData's ``plugin_data``/``plugin_state``), so worlds advance in parallel; no task steps
+   substep by substep from Python. With the Python fallback callbacks (no C compiler) each substep re-enters
+   Python, so threads would only contend for the GIL: the batch then steps serially;
 5. the post-physics phase of every world (measures, reward, observation, info), stacked.
 
 Seeding follows Gymnasium: ``reset(seed=s)`` seeds world i with ``s + i`` (a list gives one seed per world), so

@@ -27,8 +27,9 @@ posture references whip the head about and reach 1.6 x the rigid bound on some e
 lies between what flailing reached (at most 1.64) and what the hand-written schedule reaches (at least 1.88);
 fixed stiffnesses reach it on some episodes.
 
-Per step, the physics runs one substep at a time (``_advance_physics``) so that the strike's instant and the speed
-just before it are exact to the substep (1 ms), not to the control period.
+The strike's instant and the head's speed just before it are exact to the substep (1 ms), not to the control
+period: the ``vswrist.contact`` plugin on the head records the first substep that finds it on the anvil inside
+the period's one ``mj_step`` call (``shared.PeriodMeanForce``; the Python fallback steps substep by substep).
 """
 
 from __future__ import annotations
@@ -128,6 +129,7 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
                                   rgba=(0.45, 0.45, 0.5, 1), friction=tp["friction"])
         self._add_touch_sensor(spec, body, "anvil_touch", (ANVIL_HALF[0], ANVIL_HALF[1], ANVIL_HALF[2] + 0.01),
                                pos=(0, 0, -ANVIL_HALF[2] + 0.01))
+        self._add_contact_meter(spec, head, "task_head", "task_task_anvil_0")
 
     def _scene_ids(self) -> None:
         m = self.model
@@ -136,9 +138,7 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         self._anvil_geom = int(m.geom("task_task_anvil_0").id)
         self._mocap = int(m.body("task_anvil").mocapid[0])
         self._touch_adr = self._sensor_adr("anvil_touch")
-        self._vel6 = np.zeros(6)
-        self._cforce = np.zeros(6)
-        self._force_sum, self._force_n = 0.0, 0
+        self._find_contact_meter()
 
     # ------------------------------------------------------------------ episode
     def _task_reset(self, rng):
@@ -209,28 +209,20 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
         self._normal = n  # into the anvil
         self._face = face  # the nail: where the head's face meets the anvil on the nominal swing
-        self._force_sum, self._force_n = 0.0, 0
         self._t0 = float(self.data.time)  # the episode's t = 0 (after the settling)
 
     def _reference(self, t: float) -> np.ndarray:
         return np.array([self._rud, float(np.interp(t, self._swing_t, self._swing_fe)), self._ps])
 
-    # ------------------------------------------------------------------ physics, one substep at a time
-    def _is_force_contact(self, c) -> bool:
-        hg, ag = self._head_geom, self._anvil_geom
-        return (c.geom1 == hg and c.geom2 == ag) or (c.geom1 == ag and c.geom2 == hg)
-
-    def _on_force_contact(self, i: int, c) -> None:
-        # after mj_step the contact list, the solved forces and the body velocities are those of the state the
-        # substep started from: the first substep that finds the head on the anvil gives the speed just before
-        # any contact force acted
+    # ------------------------------------------------------------------ the strike, to the substep
+    def _on_first_contact(self, time: float, pos: np.ndarray, vel: np.ndarray) -> None:
+        # the first substep that finds the head on the anvil: its start (time is after it) and the head's
+        # velocity there, before any contact force acted
         if self._strike is None:
-            d = self.data
-            mujoco.mj_objectVelocity(self.model, d, mujoco.mjtObj.mjOBJ_BODY, self._head_body, self._vel6, 0)
-            t = d.time - self._t0 - self.sim.timestep
-            off = c.pos - self._face
+            t = time - self._t0 - self.sim.timestep
+            off = pos - self._face
             off -= (off @ self._normal) * self._normal  # in the face's plane
-            self._strike = (t, float(self._vel6[3:] @ self._normal), float(np.linalg.norm(off)))
+            self._strike = (t, float(vel @ self._normal), float(np.linalg.norm(off)))
 
     # ------------------------------------------------------------------ reward and success
     def timely(self) -> bool:

@@ -79,16 +79,13 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
                                   friction=self.tp["friction"])
         hx, hy, hz = SURFACE_HALF
         self._add_touch_sensor(spec, body, "surface_touch", (hx, hy, hz + 0.01), pos=(0, 0, -hz + 0.01))
+        self._add_contact_meter(spec, body, "task_task_surface_0")
 
     def _scene_ids(self) -> None:
         self._touch_adr = self._sensor_adr("surface_touch")
         self._mocap = int(self.model.body("task_surface").mocapid[0])
         self._surface_geom = int(self.model.geom("task_task_surface_0").id)
-        self._force_sum, self._force_n = 0.0, 0
-        self._cforce = np.zeros(6)
-
-    def _is_force_contact(self, c) -> bool:
-        return c.geom1 == self._surface_geom or c.geom2 == self._surface_geom
+        self._find_contact_meter()
 
     @property
     def task_id(self) -> str:
@@ -97,7 +94,7 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
     def _contact_force(self) -> float:
         mean = super()._contact_force()  # the period's mean; restarts its sums either way
         if self.tp["contact_force"] == "last_substep":
-            return float(self.data.sensordata[self._touch_adr])  # the sensors are current after a step
+            return self._last_substep_force()
         return mean
 
     def _task_reset(self, rng):

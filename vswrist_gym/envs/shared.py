@@ -104,41 +104,120 @@ class SceneMixin:
         return int(self.model.sensor_adr[self.model.sensor(name).id])
 
 
+CONTACT_METER = "contact_meter"  # the name of a task's vswrist.contact plugin instance
+
+
 class PeriodMeanForce:
     """Mixin (before ``VSWristEnv`` in the bases) for tasks whose contact force is the mean normal force over the
     control period's substeps: the tool's tip chatters against stiff contacts at about 100 Hz, so one substep's
-    reading (a touch sensor's) drops to 0 N on many pressed steps. The physics then runs one substep at a time.
+    reading (a touch sensor's) drops to 0 N on many pressed steps. It also reports, once per period, the first
+    substep with such a contact (its time, the contact's position, a body's velocity just before any contact
+    force acted), for tasks that need an impact's instant (Hammer).
 
-    The task sets ``self._cforce = np.zeros(6)`` and ``self._touch_adr`` (read at reset, before any period ran)
-    and defines ``_is_force_contact(c)``; ``_on_force_contact(i, c)`` sees each counted contact first."""
+    The measurement runs inside the physics, after the constraint solve of every substep: in the compiled
+    physics a ``vswrist.contact`` plugin instance (``model.plugin_lib``) accumulates into its plugin state, so
+    a period is one ``mj_step(m, d, n)`` call like every other task's (and a batch advances these worlds on its
+    threads too); the state is per MjData and part of ``mjSTATE_INTEGRATION``. With the Python fallback
+    callbacks (no C compiler) there is no plugin and the period runs one substep at a time, reading the same
+    quantities from Python (``tests/test_substep_meter.py`` checks that the two agree).
 
-    def _is_force_contact(self, c) -> bool:
-        raise NotImplementedError
+    The task calls ``_add_contact_meter(spec, body, geom1, geom2)`` in ``_scene`` and ``_find_contact_meter()``
+    in ``_scene_ids``, and sets ``self._touch_adr`` (the touch sensor read at reset, before any period ran);
+    ``_on_first_contact(time, pos, vel)`` sees each period's first counted contact. ``_last_substep_force()`` is
+    the other reading, the touch sensor at the end of the period."""
 
-    def _on_force_contact(self, i: int, c) -> None:
-        """Called for each counted contact of a substep, before its force is summed."""
+    _meter_names: tuple = ()
+    _force_sum, _force_n, _touched, _period_ran = 0.0, 0, False, False
+
+    def _add_contact_meter(self, spec: mujoco.MjSpec, body, geom1: str, geom2: str | None = None) -> None:
+        """Count contacts of geom ``geom1`` with ``geom2`` (None: with anything); ``body`` (an MjsBody) is the body
+        whose velocity ``_on_first_contact`` gets. Adds the plugin instance where the spec runs the compiled
+        physics (it names the VS-Wrist plugins); the fallback's spec gets nothing."""
+        from ..model.plugin_lib import CONTACT_PLUGIN, DRIVE_PLUGIN
+        self._meter_names = (body.name, geom1, geom2)
+        if not any(p.plugin_name == DRIVE_PLUGIN for p in spec.plugins):
+            return
+        spec.activate_plugin(CONTACT_PLUGIN)
+        inst = spec.add_plugin(name=CONTACT_METER, plugin_name=CONTACT_PLUGIN, active=True)
+        inst.config = {"geom1": geom1} if geom2 is None else {"geom1": geom1, "geom2": geom2}
+        body.plugin.name = CONTACT_METER
+        body.plugin.active = True
+
+    def _find_contact_meter(self) -> None:
+        """After (re)compilation: the plugin state's view (None with the fallback), geom and body ids."""
+        from ..model.plugin_lib import CONTACT_STATE_SIZE
+        m = self.model
+        body, geom1, geom2 = self._meter_names
+        self._meter_body = int(m.body(body).id)
+        self._meter_geom1 = int(m.geom(geom1).id)
+        self._meter_geom2 = -1 if geom2 is None else int(m.geom(geom2).id)
+        i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_PLUGIN, CONTACT_METER)
+        if i < 0:
+            self._meter = None
+        else:
+            adr = int(m.plugin_stateadr[i])
+            self._meter = self.data.plugin_state[adr:adr + CONTACT_STATE_SIZE]
+        self._cforce = np.zeros(6)
+        self._vel6 = np.zeros(6)
+
+    def _reset_state(self) -> None:
+        super()._reset_state()
+        self._force_sum, self._force_n, self._touched = 0.0, 0, False
+        self._period_ran = False
+
+    def _on_first_contact(self, time: float, pos: np.ndarray, vel: np.ndarray) -> None:
+        """The period's first substep with a counted contact: ``time`` (s) of ``data.time`` after that substep,
+        ``pos`` (3,) of its first counted contact, ``vel`` (3,) the linear velocity (m/s, world frame) of the
+        meter's body at the state the substep started from, before any contact force acted."""
 
     def _advance_physics(self, duration: float, first: bool) -> None:
-        # after mj_step the contact arrays hold that substep's contacts and their solved forces
+        if self._meter is not None:
+            if first:
+                self._meter[:] = 0.0
+            self._period_ran = True
+            self.sim.step(duration, restart_peak=first)
+            return
+        # the fallback: after mj_step(m, d, 1) the contact list, the solved forces and the body velocities are
+        # those of the state the substep started from (what the plugin's advance callback sees)
         if first:
-            self._force_sum, self._force_n = 0.0, 0
+            self._force_sum, self._force_n, self._touched = 0.0, 0, False
         m, d, f = self.model, self.data, self._cforce
+        g1, g2 = self._meter_geom1, self._meter_geom2
         dt = self.sim.timestep
         for k in range(int(round(duration / dt))):
             self.sim.step(dt, restart_peak=first and k == 0)
             for i in range(d.ncon):
                 c = d.contact[i]
-                if self._is_force_contact(c):
-                    self._on_force_contact(i, c)
-                    mujoco.mj_contactForce(m, d, i, f)
-                    self._force_sum += f[0]
+                a, b = c.geom1, c.geom2
+                if not ((a == g1 or b == g1) if g2 < 0 else ((a == g1 and b == g2) or (a == g2 and b == g1))):
+                    continue
+                if not self._touched:
+                    self._touched = True
+                    mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, self._meter_body, self._vel6, 0)
+                    self._on_first_contact(float(d.time), c.pos.copy(), self._vel6[3:].copy())
+                mujoco.mj_contactForce(m, d, i, f)
+                self._force_sum += f[0]
             self._force_n += 1
+
+    def _last_substep_force(self) -> float:
+        """The touch sensor's reading (N) at the state the physics stands in (sensors are current after a step)."""
+        return float(self.data.sensordata[self._touch_adr])
 
     def _contact_force(self) -> float:
         """Mean normal force (N) over the last control period's substeps (at reset, where no period has run: the
-        touch sensor's reading)."""
+        touch sensor's reading). Reads and clears the period's measurements."""
+        meter = self._meter
+        if meter is not None:
+            if not self._period_ran or meter[1] == 0.0:
+                return self._last_substep_force()
+            self._period_ran = False
+            if meter[2] != 0.0:
+                self._on_first_contact(float(meter[3]), meter[4:7].copy(), meter[7:10].copy())
+            out = float(meter[0]) / float(meter[1])
+            meter[:] = 0.0
+            return out
         if self._force_n == 0:
-            return float(self.data.sensordata[self._touch_adr])
+            return self._last_substep_force()
         out = self._force_sum / self._force_n
-        self._force_sum, self._force_n = 0.0, 0
+        self._force_sum, self._force_n, self._touched = 0.0, 0, False
         return out

@@ -1,5 +1,5 @@
-"""The VS-Wrist's MuJoCo engine plugins (``vswrist.drive``, ``vswrist.closure``): their C source, compiled at
-first use into a user cache directory, and loaded into the process.
+"""The VS-Wrist's MuJoCo engine plugins (``vswrist.drive``, ``vswrist.closure``, ``vswrist.contact``): their C
+source, compiled at first use into a user cache directory, and loaded into the process.
 
 This module imports nothing else from the package: it is also the ``mujoco.plugins`` entry point, which
 ``import mujoco`` runs, possibly while a module of this package is halfway through its own ``import mujoco``.
@@ -22,6 +22,11 @@ import mujoco
 
 DRIVE_PLUGIN = "vswrist.drive"  # MuJoCo plugin names, registered by the library compiled here
 CLOSURE_PLUGIN = "vswrist.closure"
+CONTACT_PLUGIN = "vswrist.contact"
+# the plugin state of a vswrist.contact instance, in this order (CONTACT_STATE_SIZE numbers)
+CONTACT_STATE = ("force_sum", "substeps", "touched", "touch_time", "touch_pos_x", "touch_pos_y", "touch_pos_z",
+                 "touch_vel_x", "touch_vel_y", "touch_vel_z")
+CONTACT_STATE_SIZE = len(CONTACT_STATE)
 
 PLUGIN_SOURCE = r"""
 /* The VS-Wrist's springs and motor setpoint dynamics as MuJoCo engine plugins.
@@ -37,6 +42,15 @@ PLUGIN_SOURCE = r"""
    vswrist.closure (passive force capability, no force): one body references it; the largest violation of
    the welds between that body and others (origin distance in m or frame angle in rad, whichever is larger)
    seen at any evaluation of the passive forces is kept in the instance's plugin state.
+   vswrist.contact (passive force capability, no force): one body references it; config geom1 (a geom name)
+   and optionally geom2 select contacts (geom1 with geom2 in either order, or geom1 with anything). After the
+   constraint solve of every substep (the advance callback, which runs after the integration: the contact
+   list, the solved forces efc_force and the body velocities are still those of the state the substep started
+   from) it adds the selected contacts' normal forces (mj_contactForce) and counts the substep; at the first
+   substep with a selected contact it keeps that substep's time (after it), the first such contact's position
+   and the referencing body's linear velocity (mj_objectVelocity, world frame). The owner reads and clears
+   the state between windows; mj_resetData leaves it (MuJoCo's automatic reset inside a diverging mj_step
+   must not erase what the window measured before), init zeroes it.
 
    All mutable state lives in the mjData (plugin_data: the resolved addresses; plugin_state: the closure
    peak); nothing is global, so separate mjData can step on separate threads. Configuration errors are
@@ -327,6 +341,101 @@ static void closure_compute(const mjModel* m, mjData* d, int instance, int capab
   peak[0] = worst;
 }
 
+/* ------------------------------------------------------------------------------- vswrist.contact */
+#define VSWRIST_CONTACT_NSTATE @NSTATE@
+
+typedef struct {
+  int body, geom1, geom2;  /* geom2 -1: geom1 against anything */
+} ContactMeter;
+
+static int contact_nstate(const mjModel* m, int instance) {
+  int n = 0;
+  for (int b = 0; b < m->nbody; b++) n += m->body_plugin[b] == instance;
+  if (n != 1) {
+    mju_error("vswrist.contact instance '%s': exactly one body must reference it, got %d",
+              instance_name(m, instance), n);
+  }
+  return VSWRIST_CONTACT_NSTATE;
+}
+
+/* -2: key absent; -1: not a geom of the model */
+static int config_geom(const mjModel* m, int instance, const char* key) {
+  const char* s = mj_getPluginConfig(m, instance, key);
+  if (!s || !s[0]) return -2;
+  return mj_name2id(m, mjOBJ_GEOM, s);
+}
+
+/* the geoms are resolved here: the compiler asks for nstate before they are all in the model */
+static int contact_init(const mjModel* m, mjData* d, int instance) {
+  const char* name = instance_name(m, instance);
+  ContactMeter* s = (ContactMeter*)malloc(sizeof(ContactMeter));
+  if (!s) return -1;
+  s->body = closure_body(m, instance);
+  s->geom1 = config_geom(m, instance, "geom1");
+  s->geom2 = config_geom(m, instance, "geom2");
+  if (s->geom1 < 0 || s->geom2 == -1) {
+    const char* g1 = mj_getPluginConfig(m, instance, "geom1");
+    const char* g2 = mj_getPluginConfig(m, instance, "geom2");
+    free(s);
+    mju_error("vswrist.contact instance '%s': config geom1 must name a geom of the model and geom2 another "
+              "one or be left out, got geom1 '%s', geom2 '%s'", name, g1 ? g1 : "", g2 ? g2 : "");
+  }
+  if (s->geom2 == -2) s->geom2 = -1;
+  d->plugin_data[instance] = (uintptr_t)s;
+  memset(d->plugin_state + m->plugin_stateadr[instance], 0, VSWRIST_CONTACT_NSTATE * sizeof(mjtNum));
+  return 0;
+}
+
+static void contact_destroy(mjData* d, int instance) {
+  free((void*)d->plugin_data[instance]);
+  d->plugin_data[instance] = 0;
+}
+
+static void contact_copy(mjData* dest, const mjModel* m, const mjData* src, int instance) {
+  const ContactMeter* from = (const ContactMeter*)src->plugin_data[instance];
+  ContactMeter* to = (ContactMeter*)dest->plugin_data[instance];
+  if (!from || to == from) return;
+  if (!to) {
+    to = (ContactMeter*)malloc(sizeof(ContactMeter));
+    if (!to) mju_error("vswrist.contact: out of memory copying mjData");
+    dest->plugin_data[instance] = (uintptr_t)to;
+  }
+  memcpy(to, from, sizeof(ContactMeter));
+}
+
+static void contact_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance) {}
+
+static void contact_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {}
+
+/* after the substep's integration (mj_advance): d->contact, efc_force, cvel, xpos are still the substep's own */
+static void contact_advance(const mjModel* m, mjData* d, int instance) {
+  const ContactMeter* s = (const ContactMeter*)d->plugin_data[instance];
+  if (!s) return;
+  mjtNum* st = d->plugin_state + m->plugin_stateadr[instance];
+  mjtNum f[6], v[6];
+  for (int i = 0; i < d->ncon; i++) {
+    const mjContact* c = d->contact + i;
+    const int g1 = c->geom[0], g2 = c->geom[1];
+    const int hit = s->geom2 < 0 ? (g1 == s->geom1 || g2 == s->geom1) :
+                    ((g1 == s->geom1 && g2 == s->geom2) || (g1 == s->geom2 && g2 == s->geom1));
+    if (!hit) continue;
+    if (st[2] == 0) {
+      mj_objectVelocity(m, d, mjOBJ_BODY, s->body, v, 0);
+      st[2] = 1;
+      st[3] = d->time;
+      st[4] = c->pos[0];
+      st[5] = c->pos[1];
+      st[6] = c->pos[2];
+      st[7] = v[3];
+      st[8] = v[4];
+      st[9] = v[5];
+    }
+    mj_contactForce(m, d, i, f);
+    st[0] += f[0];
+  }
+  st[1] += 1;
+}
+
 mjPLUGIN_LIB_INIT(vswrist_plugins) {
   mjpPlugin drive;
   mjp_defaultPlugin(&drive);
@@ -356,8 +465,25 @@ mjPLUGIN_LIB_INIT(vswrist_plugins) {
   closure.reset = closure_reset;
   closure.compute = closure_compute;
   mjp_registerPlugin(&closure);
+
+  static const char* contact_attributes[] = {"geom1", "geom2"};
+  mjpPlugin contact;
+  mjp_defaultPlugin(&contact);
+  contact.name = "@CONTACT@";
+  contact.capabilityflags = mjPLUGIN_PASSIVE;  /* a body may reference only passive-force plugins */
+  contact.nattribute = 2;
+  contact.attributes = contact_attributes;
+  contact.nstate = contact_nstate;
+  contact.init = contact_init;
+  contact.destroy = contact_destroy;
+  contact.copy = contact_copy;
+  contact.reset = contact_reset;
+  contact.compute = contact_compute;
+  contact.advance = contact_advance;
+  mjp_registerPlugin(&contact);
 }
-""".replace("@DRIVE@", DRIVE_PLUGIN).replace("@CLOSURE@", CLOSURE_PLUGIN)
+""".replace("@DRIVE@", DRIVE_PLUGIN).replace("@CLOSURE@", CLOSURE_PLUGIN).replace("@CONTACT@", CONTACT_PLUGIN) \
+    .replace("@NSTATE@", str(CONTACT_STATE_SIZE))
 
 _plugin_path: Path | None = None  # the plugin library loaded into this process, if any
 
@@ -430,7 +556,7 @@ def load_plugin() -> Path:
     core = ctypes.CDLL(str(_libmujoco()))  # the library the bindings use: dlopen returns the loaded one
     core.mjp_getPlugin.restype = ctypes.c_void_p
     core.mjp_getPlugin.argtypes = [ctypes.c_char_p, ctypes.c_void_p]
-    for name in (DRIVE_PLUGIN, CLOSURE_PLUGIN):
+    for name in (DRIVE_PLUGIN, CLOSURE_PLUGIN, CONTACT_PLUGIN):
         if not core.mjp_getPlugin(name.encode(), None):
             raise RuntimeError(f"loading {path} did not register the MuJoCo plugin {name}")
     _plugin_path = path
