@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-import vswrist_gym  # noqa: F401
+import vswrist_gym
 from vswrist_gym.model import native
 
 try:
@@ -59,7 +59,7 @@ def test_compiled_meter_equals_a_per_substep_reading_from_python(task):
     """The plugin's period mean (``info['contact_force']``) and Hammer's strike (time, normal speed) equal a
     reading taken substep by substep on a copy of the world, with mj_forward before each substep and the head's
     velocity from its Jacobian (not mj_objectVelocity), on a short episode with contact."""
-    env = gym.make(f"VSWrist/{task}-v0", config={"randomize": {"latency": {"enabled": False}}})
+    env = gym.make(vswrist_gym.resolve_id(task), config={"randomize": {"latency": {"enabled": False}}})
     u = env.unwrapped
     assert u._meter is not None, "the compiled physics should carry the vswrist.contact instance"
     env.reset(seed=5)
@@ -99,7 +99,7 @@ def test_compiled_meter_reproduces_the_python_fallback(task, monkeypatch):
     for backend in ("1", "0"):
         monkeypatch.setenv("VSWRIST_NATIVE", backend)
         try:
-            env = gym.make(f"VSWrist/{task}-v0", config=cfg)
+            env = gym.make(vswrist_gym.resolve_id(task), config=cfg)
             assert (env.unwrapped._meter is None) == (backend == "0")
             rng = np.random.default_rng(7)
             obs, _ = env.reset(seed=7)
@@ -142,7 +142,7 @@ def test_contact_meter_state_survives_get_and_set_state_and_is_per_mjdata():
     """The measurements live in plugin_state: a state saved mid-period and restored into a fresh world gives the
     same period mean (mjSTATE_INTEGRATION includes mjSTATE_PLUGIN), and another MjData of the same model keeps
     its own accumulator."""
-    env = gym.make("VSWrist/Polish-v0")
+    env = gym.make("VSWrist/Polish-v1")
     u = env.unwrapped
     env.reset(seed=2)
     for _ in range(20):
