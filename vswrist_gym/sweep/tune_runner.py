@@ -7,6 +7,8 @@ installed. A trial asks for as many CPUs as its run has environments (`n_envs`);
 Fault tolerance rests on the run directories, not on Tune's state: a trial whose worker or node died is retried
 by Tune (`max_failures`), and the retry resumes the training from the run's newest intact checkpoint; `--resume`
 after the driver died starts Tune again on the trials that have no record yet (see `vswrist_gym.sweep.trial`).
+A search's `--resume` restores its Tune experiment instead (samples and the Optuna sampler's state); a restarted
+sample finds its trainings' run directories and loads (finished) or resumes (cut off) them rather than train again.
 """
 
 from __future__ import annotations
