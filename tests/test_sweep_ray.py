@@ -1,6 +1,7 @@
 """`vswrist sweep` on a two-node Ray cluster on this machine (loopback only): the trials' metrics equal serial
 `vswrist train` + `vswrist evaluate` runs, a worker node killed mid-trial and a driver killed mid-sweep lose and
-duplicate nothing. Needs the [sweep] extra; not in the default suite (several minutes):
+duplicate nothing, and a search whose driver is killed resumes without training a finished sample again. Needs
+the [sweep] extra; not in the default suite (several minutes):
 
     python3 -m pytest -m ray tests/test_sweep_ray.py
 """
