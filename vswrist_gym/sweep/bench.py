@@ -128,8 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     starts = [r["finished"] - r["seconds"] for r in records]
     in_trials = sum(r["seconds"] for r in records) / len(records)
 
-    print(f"{len(SEEDS)} trials (PPO LoadHold, {args.steps} steps, n_envs 1, + {args.episodes} evaluation episodes each) on "
-          f"{os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; 1-min load average "
+    print(f"{len(SEEDS)} trials (PPO LoadHold, {args.steps} steps, n_envs 1, + {args.episodes} evaluation episodes "
+          f"each) on {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; 1-min load average "
           f"{' -> '.join(f'{x:.1f}' for x in loads)} (start, after each reference, after the sweep)")
     for ref, (wall, metrics, seconds) in serial.items():
         same = all(_episodes(metrics[t["seed"]]) == _episodes(Path(t["trial_dir"]) / "metrics.json") for t in trials)
