@@ -1,6 +1,7 @@
 """`vswrist sweep` on a two-node Ray cluster on this machine (loopback only): the trials' metrics equal serial
 `vswrist train` + `vswrist evaluate` runs, a worker node killed mid-trial and a driver killed mid-sweep lose and
-duplicate nothing. Needs the [sweep] extra; not in the default suite (several minutes):
+duplicate nothing, and a search whose driver is killed resumes without training a finished sample again. Needs
+the [sweep] extra; not in the default suite (several minutes):
 
     python3 -m pytest -m ray tests/test_sweep_ray.py
 """
@@ -211,3 +212,67 @@ def test_search_writes_a_best_entry_that_train_reads_without_touching_evaluation
     marker = json.loads((tmp_path / "runs" / "LoadHold" / "search_LoadHold_ppo.done.json").read_text())
     assert marker["config"]["learning_rate"] == lr
     assert not list((tmp_path / "runs").rglob("metrics.json"))
+
+
+def test_search_driver_killed_resume_reruns_no_finished_sample_and_writes_the_best_once(cluster, tmp_path):
+    """A search (4 samples, 2 at a time) whose driver is killed once a sample has finished: `--resume` restores
+    the Tune experiment, the search ends with 4 samples (the Optuna sampler's state restored, none drawn twice),
+    no finished training runs again (its run directory untouched, one 'finished' in every run's history), and the
+    best entry, written once, is the sample with the highest final periodic evaluation over all 4 samples,
+    those finished before the kill included (read back from the samples' own evaluation files)."""
+    import numpy as np
+
+    from vswrist_gym.agents import hparams
+
+    c, _ = cluster(2, 2)
+    samples, budget, best = 4, 2048, tmp_path / "best_ppo.yaml"
+    doc = {"mode": "search", "tasks": ["LoadHold"], "algos": ["ppo"], "seeds": [100], "stiffness": [],
+           "timesteps": {"ppo": budget}, "n_envs": {"ppo": 1},
+           "overrides": {"ppo": {"eval_freq": 512, "checkpoint_freq": 512, "n_eval_episodes": 1}},
+           "runs_dir": str(tmp_path / "runs"),
+           "search": {"samples": samples, "grace_steps": budget, "seed": 3, "best_out": str(best),
+                      "space": {"ppo": {"learning_rate": {"loguniform": [1.0e-4, 1.0e-3]}}}}}
+    path = tmp_path / "search.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    root = tmp_path / "runs" / "LoadHold" / "search" / "ppo"
+
+    def finished_runs():
+        out = []
+        for run_json in root.glob("*/seed100/run.json"):
+            try:
+                if json.loads(run_json.read_text()).get("status") == "finished":
+                    out.append(run_json.parent)
+            except ValueError:  # being replaced
+                pass
+        return out
+
+    log = tmp_path / "search.log"
+    proc = start_sweep(path, c.address, "--max-concurrent", "2", log=log)
+    done = wait_for(lambda: finished_runs() if 0 < len(finished_runs()) < samples else None, 600,
+                    "a finished sample")
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not best.exists(), "the kill came before the search ended"
+    untouched = {run: {p: p.stat().st_mtime_ns for p in run.rglob("*") if p.is_file()} for run in done}
+    text = finish(start_sweep(path, c.address, "--max-concurrent", "2", "--resume", log=tmp_path / "resume.log"),
+                  tmp_path / "resume.log")
+    assert "resuming the search" in text
+    marker = json.loads((tmp_path / "runs" / "LoadHold" / "search_LoadHold_ppo.done.json").read_text())
+    assert marker["samples"] == samples and len(marker["trials"]) == samples, marker
+    sample_dirs = [root / trial_id for trial_id in marker["trials"]]
+    assert {run.parent for run in untouched} <= set(sample_dirs), "a sample finished before the kill was dropped"
+    for run, files in untouched.items():
+        assert {p: p.stat().st_mtime_ns for p in run.rglob("*") if p.is_file()} == files, f"{run} was rerun"
+    final = {}
+    for d in sample_dirs:
+        history = json.loads((d / "seed100" / "run.json").read_text())["history"]
+        assert [h["status"] for h in history].count("finished") == 1, d.name
+        with np.load(d / "seed100" / "eval" / "evaluations.npz") as ev:
+            assert int(ev["timesteps"][-1]) == budget
+            final[d.name] = float(ev["results"][-1].mean())
+    top = max(final, key=final.get)
+    lr_top = yaml.safe_load((root / top / "hparams.yaml").read_text())["VSWrist/LoadHold-v0"]["learning_rate"]
+    assert hparams.load_config("ppo", "VSWrist/LoadHold-v0", best).algo_kwargs["learning_rate"] == lr_top
+    written = best.read_text()
+    top_level = [line for line in written.splitlines() if line.startswith("VSWrist/")]
+    assert top_level == ["VSWrist/LoadHold-v0:"] and written.count("(mode: search)") == 1, written
