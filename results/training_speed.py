@@ -116,7 +116,7 @@ def main(argv=None) -> int:
             print(f"{name:<12} seed {seed}: {r['steps_per_s']:.0f} env steps/s over {r['env_steps']} steps", flush=True)
 
     print(f"\n{env_id}, {args.algo.upper()}, {args.timesteps} steps, seeds {args.seeds}")
-    print(f"{'setting':<12}{'steps/s':>9}{'x subproc-2':>11}" + "".join(f"{f'ret Q{q + 1}':>10}" for q in range(4))
+    print(f"{'setting':<12}{'steps/s':>9}{'x subproc-2':>12}" + "".join(f"{f'ret Q{q + 1}':>10}" for q in range(4))
           + f"{'t (last Q)':>11}{'p':>6}   last-quarter mean per seed")
     doc = {"task": env_id, "algo": args.algo, "timesteps": args.timesteps, "seeds": args.seeds, "settings": {}}
     ref_speed = sum(results[("subproc-2", s)]["steps_per_s"] for s in args.seeds) / len(args.seeds)
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
         quarters = [sum(r["quarters"][q] for r in rs) / len(rs) for q in range(4)]
         last = seed_means(name)
         t, pval = welch(last, ref_last)
-        print(f"{name:<12}{speed:>9.0f}{speed / ref_speed:>11.2f}" + "".join(f"{q:>10.1f}" for q in quarters)
+        print(f"{name:<12}{speed:>9.0f}{speed / ref_speed:>12.2f}" + "".join(f"{q:>10.1f}" for q in quarters)
               + f"{t:>11.2f}{pval:>6.2f}   " + " ".join(f"{x:.1f}" for x in last))
         doc["settings"][name] = {"steps_per_s": speed, "vs_subproc_2": speed / ref_speed, "quarter_returns": quarters,
                                  "last_quarter_per_seed": last, "welch_t_last_quarter": t, "welch_p": pval,
