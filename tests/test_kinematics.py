@@ -115,3 +115,20 @@ def test_legs_evenly_spaced_about_base_x():
         assert abs(a[0]) < 1e-15  # first axes perpendicular to X_b
     for i in range(3):
         assert abs(axes[i] @ axes[(i + 1) % 3] - np.cos(2 * np.pi / 3)) < 1e-12
+
+
+def test_motor_side_angles_are_the_full_inverse_kinematics_q1():
+    """The q1-only path gives exactly the q1 of the full leg inverse (same operations), and those reach the coupler
+    through forward kinematics (an independent check of the values)."""
+    from vswrist_gym.kinematics import WristKinematics
+
+    kin = WristKinematics()
+    rng = np.random.default_rng(7)
+    lo, hi = kin.u_min, kin.u_max
+    for _ in range(200):
+        u = rng.uniform(lo, hi)
+        q = kin.joint_angles(u)
+        assert np.array_equal(kin.motor_side_angles(u), q[0::4])
+        T = kin.coupler_pose(u)
+        for leg in range(3):
+            np.testing.assert_allclose(kin.leg_forward(q[4 * leg:4 * leg + 4], leg)[:3, 3], T[:3, 3], atol=1e-12)

@@ -111,19 +111,23 @@ class WristKinematics:
         """
         T = np.asarray(T, dtype=float)
         eta = self.eta[leg]
-        p0 = rot_x(eta).T @ T[:3, 3]
-        sa, ca = np.sin(self.alpha), np.cos(self.alpha)
-        c2 = np.clip(-p0[2] / (self.d * sa), -1.0, 1.0)
-        q2 = np.arccos(c2)
-        a = self.d * (1.0 - ca)
-        b = self.d * sa * np.sin(q2)
-        q1 = np.arctan2(a * p0[0] + b * p0[1], b * p0[0] - a * p0[1])
+        q1, q2 = self._leg_q1_q2(T, eta)
         R02 = rot_z(q1) @ rot_x(np.pi / 2) @ rot_z(q2) @ rot_x(-self.alpha)
         M = R02.T @ rot_x(eta).T @ T[:3, :3] @ rot_x(np.pi - eta).T  # = Rz(q3) Rx(pi/2) Rz(q4)
         q3 = np.arctan2(M[0, 2], -M[1, 2])
         q3 = q2 + np.pi + _wrap(q3 - q2 - np.pi)
         q4 = np.arctan2(M[2, 0], M[2, 1])
         return np.array([q1, q2, q3, q4])
+
+    def _leg_q1_q2(self, T: np.ndarray, eta: float):
+        """q1 and q2 of ``leg_inverse`` (the position equations; see there)."""
+        p0 = rot_x(eta).T @ T[:3, 3]
+        sa, ca = np.sin(self.alpha), np.cos(self.alpha)
+        c2 = np.clip(-p0[2] / (self.d * sa), -1.0, 1.0)
+        q2 = np.arccos(c2)
+        a = self.d * (1.0 - ca)
+        b = self.d * sa * np.sin(q2)
+        return np.arctan2(a * p0[0] + b * p0[1], b * p0[0] - a * p0[1]), q2
 
     # --------------------------------------------------------------- posture
     def check_posture(self, u: np.ndarray, allow_outside: bool = False) -> np.ndarray:
@@ -174,6 +178,12 @@ class WristKinematics:
         """All 12 leg joint angles Q = [q_A, q_B, q_C] at posture u."""
         T = self.coupler_pose(u, allow_outside)
         return np.concatenate([self.leg_inverse(T, leg) for leg in range(3)])
+
+    def motor_side_angles(self, u: np.ndarray, allow_outside: bool = False) -> np.ndarray:
+        """The three legs' first joint angles (q1 of A, B, C: the motor side of the springs) at posture u: the
+        same values as ``joint_angles(u)[0::4]`` by the same operations, without solving q3 and q4."""
+        T = self.coupler_pose(u, allow_outside)
+        return np.array([self._leg_q1_q2(T, self.eta[leg])[0] for leg in range(3)])
 
     def end_effector_pose(self, u: np.ndarray, ps: float, allow_outside: bool = False) -> np.ndarray:
         """End-effector frame T_b^e = T_b^c Rx(theta_PS) (4x4)."""

@@ -171,8 +171,8 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid)."""
         kin = self._kinematics()
         h = 1e-5
-        qa = kin.joint_angles(np.array([self._rud, fe + h]))[0::4]
-        qb = kin.joint_angles(np.array([self._rud, fe - h]))[0::4]
+        qa = kin.motor_side_angles(np.array([self._rud, fe + h]))
+        qb = kin.motor_side_angles(np.array([self._rud, fe - h]))
         return float(np.max(np.abs(qa - qb)) / (2 * h))
 
     def _kinematics(self):
