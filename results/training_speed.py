@@ -15,8 +15,8 @@ Speed: env steps per second of training from the episode logs (Monitor/VecMonito
 were made, so start-up is excluded; evaluation and updates are included). Returns: the mean episode return in
 each quarter of the budget (episodes ordered by their end time; env steps counted over all worlds), and a Welch
 t-test against ``subproc-2`` of the training seeds' last-quarter means (the seed is the unit of replication:
-episodes of one run are not independent), with its two-sided p-value (SciPy). A short run shows the mechanics and the speed; equal returns
-need the full budgets and several seeds.
+episodes of one run are not independent), with its two-sided p-value (SciPy). A short run shows the mechanics
+and the speed; equal returns need the full budgets and several seeds.
 """
 
 from __future__ import annotations

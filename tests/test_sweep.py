@@ -68,7 +68,8 @@ def _recorded(summary: dict) -> dict:
 
 
 @pytest.mark.parametrize("name,channel", [
-    ("results", None), ("long", None), ("long200", None), ("sac_drill", None), ("sac_long", None), ("sac_insertion", None),
+    ("results", None), ("long", None), ("long200", None), ("sac_drill", None), ("sac_long", None),
+    ("sac_insertion", None),
     ("ablation_posture_only", "stiffness_scale"), ("ablation_stiffness_only", "posture_scale"),
     ("long_stiffness", "posture_scale"), ("hammer_stiffness", "posture_scale"),
 ])

@@ -5,7 +5,8 @@ machine; prints the wall times, their ratio and where the sweep's time went (not
 
 The grid: PPO on LoadHold, seeds 0-7, STEPS steps each with the packaged hyperparameters except `n_envs: 1`, then
 the evaluation protocol (EPISODES episodes on the trial's seed). One environment makes a trial a one-CPU job: a
-2-core machine runs two at a time (a batched run, `vec_env: batch`, asks for one CPU whatever its n_envs). The default 32,768 steps is 40 % of LoadHold's packaged budget
+2-core machine runs two at a time (a batched run, `vec_env: batch`, asks for one CPU whatever its n_envs).
+The default 32,768 steps is 40 % of LoadHold's packaged budget
 (80,000): a short trial, long enough that a learning curve has three periodic evaluations (every 10,000 steps).
 
 Serial references (both run the same trial work as a sweep trial: one torch thread, the default of `vswrist train`,
