@@ -11,7 +11,9 @@ import json
 import os
 import shlex
 import shutil
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -48,6 +50,51 @@ def task_id(name: str) -> str:
         return f"VSWrist/{name}"
     check_env_id(name)  # raises a ConfigError listing the registered tasks
     return name
+
+
+class _DeferredInterrupt:
+    """Ctrl-C while learning stops training at the next environment step (``stop_callback``) instead of raising
+    KeyboardInterrupt wherever the signal lands: raised inside a native call or a library's cleanup it can be
+    swallowed, and the run then trains on. A second Ctrl-C raises at once. Only in the main thread (a Ray trial
+    runs in another; signals are the main thread's)."""
+
+    def __init__(self):
+        self.requested = False
+        self._previous = None
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handler)
+        return self
+
+    def _handler(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __exit__(self, *exc) -> bool:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+        return False
+
+    def stop_callback(self):
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        guard = self
+
+        class StopOnInterrupt(BaseCallback):
+            def _on_step(self) -> bool:
+                return not guard.requested
+
+        return StopOnInterrupt()
+
+
+def _save_interrupted(run_dir: Path, model, cfg: RunConfig, log) -> None:
+    save_checkpoint(run_dir, model, model.get_vec_normalize_env(), keep=cfg.keep_checkpoints)
+    update_run_json(run_dir, status="interrupted", num_timesteps=int(model.num_timesteps),
+                    checkpoint_step=int(model.num_timesteps),
+                    history={"status": "interrupted", "reached_step": int(model.num_timesteps), "time": time.time()})
+    log(f"interrupted at {model.num_timesteps} steps; checkpoint saved, continue with --resume")
 
 
 def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: bool):
@@ -250,18 +297,20 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
                 warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
                 callbacks, eval_env = _callbacks(run_dir, cfg, cfg.n_envs, seed, resumed=checkpoint is not None)
             start = time.time()
+            guard = _DeferredInterrupt()
             try:
-                model.learn(total_timesteps=remaining, callback=callbacks, progress_bar=progress,
-                            reset_num_timesteps=checkpoint is None, tb_log_name=algo)
+                with guard:
+                    model.learn(total_timesteps=remaining, callback=[guard.stop_callback(), *callbacks],
+                                progress_bar=progress, reset_num_timesteps=checkpoint is None, tb_log_name=algo)
+                if guard.requested:
+                    raise KeyboardInterrupt
             except KeyboardInterrupt:
-                save_checkpoint(run_dir, model, model.get_vec_normalize_env(), keep=cfg.keep_checkpoints)
-                update_run_json(run_dir, status="interrupted", num_timesteps=int(model.num_timesteps),
-                                checkpoint_step=int(model.num_timesteps),
-                                history={"status": "interrupted", "reached_step": int(model.num_timesteps),
-                                         "time": time.time()})
-                log(f"interrupted at {model.num_timesteps} steps; checkpoint saved, continue with --resume")
+                _save_interrupted(run_dir, model, cfg, log)
                 raise
             except Exception as exc:  # noqa: BLE001 - an environment or worker failure: keep what was learnt
+                if guard.requested:  # Ctrl-C reached the SubprocVecEnv workers too, and they stopped first
+                    _save_interrupted(run_dir, model, cfg, log)
+                    raise KeyboardInterrupt from None
                 update_run_json(run_dir, status="failed", error=f"{type(exc).__name__}: {exc}",
                                 num_timesteps=int(model.num_timesteps),
                                 history={"status": "failed", "reached_step": int(model.num_timesteps),
