@@ -411,10 +411,15 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         return 0.0
 
     def _tracking_error(self, err: np.ndarray) -> np.ndarray:
-        """The part of the posture error (RUD, FE, PS) that the tracking reward counts."""
+        """The part of the posture error (RUD, FE, PS; the last axis) that the tracking reward counts. Index the
+        last axis only (``err[..., 1:]``): a batch passes all its worlds' errors (N, 3) at once."""
         return err
 
     def _task_reward_terms(self, err: np.ndarray) -> dict[str, float]:
+        return {}
+
+    def _task_info(self) -> dict:
+        """Task-specific ``info`` entries of every step and reset (numbers or bools, the same keys each time)."""
         return {}
 
     def _success(self) -> bool:

@@ -23,6 +23,7 @@ world i replays ``gym.make(id).reset(seed=s + i)`` step for step (``tests/test_b
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Mapping, Sequence
@@ -34,6 +35,22 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .actions import check_action
+from .base import VSWristEnv
+from .rewards import wrap_angle
+
+# observation terms the batch computes over arrays from what it measured; the others are read world by world
+# (from each world's simulator, or a task's own term)
+ARRAY_TERMS = ("posture", "deflections", "spring_torques", "stiffness", "lam", "prev_action", "target",
+               "contact_force", "phase")
+
+
+def _row_sum_sq(x: np.ndarray) -> np.ndarray:
+    """Sum of squares along the last axis, added column by column in order (as ``rewards._sum_sq``)."""
+    sq = x * x
+    out = sq[..., 0]
+    for j in range(1, sq.shape[-1]):
+        out = out + sq[..., j]
+    return out
 
 
 THREADS_ENV = "VSWRIST_THREADS"  # physics threads of every batch made without ``threads`` (e.g. by vswrist train)
@@ -109,6 +126,19 @@ class VSWristVectorEnv(VectorEnv):
         self._dict_obs = first.cfg["obs_mode"] == "dict"
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._started = False
+        # what the array step needs to know of the task (the same for every world)
+        cls = type(first)
+        self._mode = first.cfg["action_mode"]
+        self._hook_before = cls._before_physics is not VSWristEnv._before_physics
+        self._hook_contact = cls._contact_force is not VSWristEnv._contact_force
+        self._hook_reward = cls._task_reward_terms is not VSWristEnv._task_reward_terms
+        self._hook_info = cls._task_info is not VSWristEnv._task_info
+        self._obs_size = first.obs_size
+        self._obs_names = [t.name for t in first.obs_terms]
+        self._obs_slices = dict(first.obs_slices)
+        spans = [(sl.start, sl.stop, name) for name, sl in first.obs_slices.items()]
+        self._array_terms = [x for x in spans if x[2] in ARRAY_TERMS]
+        self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS]
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         self.set_threads(threads)
@@ -175,14 +205,16 @@ class VSWristVectorEnv(VectorEnv):
             if not self._started and not mask.all():
                 raise ResetNeeded("the first reset() must reset every world (no reset_mask)")
         super().reset(seed=seed if isinstance(seed, (int, np.integer)) else None)
-        obs = list(self._last_obs) if self._started else [None] * self.num_envs
-        infos = [{} for _ in range(self.num_envs)]
-        for i in np.flatnonzero(mask):
-            obs[i], infos[i] = self.envs[i].reset(seed=seeds[i], options=options)
+        obs = self._last_obs.copy() if self._started else np.zeros((self.num_envs, self._obs_size), np.float32)
+        out: dict[str, Any] = {}
+        for i in np.flatnonzero(mask).tolist():
+            o, info = self.envs[i].reset(seed=seeds[i], options=options)
+            obs[i] = self._flat(o)
+            out = self._add_info(out, info, i)
             self._autoreset[i] = False
         self._started = True
         self._last_obs = obs
-        return self._stack(obs), self._merge_infos(infos, mask)
+        return self._unflat(obs), out
 
     def check_actions(self, actions) -> np.ndarray:
         """The batch of actions as float64 (N, action_dim), or a ``ValueError`` naming the env index."""
@@ -206,89 +238,324 @@ class VSWristVectorEnv(VectorEnv):
         return arr
 
     def step(self, actions):
-        obs, rew, term, trunc, infos = self._step_core(actions)
-        return self._stack(obs), rew, term, trunc, self._merge_infos(infos)
+        obs, rew, term, trunc, (cols, rows, extras) = self._step_core(actions)
+        return self._unflat(obs), rew, term, trunc, self._vector_info(cols, rows, extras)
 
     def step_worlds(self, actions):
         """One step, returned per world for adapters (SB3): stacked observations, rewards, terminated,
         truncated, and the list of the worlds' own info dicts. Same autoreset rule as ``step``."""
-        obs, rew, term, trunc, infos = self._step_core(actions)
-        return self._stack(obs), rew, term, trunc, infos
+        obs, rew, term, trunc, (cols, rows, extras) = self._step_core(actions)
+        return self._unflat(obs), rew, term, trunc, self._world_infos(cols, rows, extras)
 
     def _step_core(self, actions):
+        """Returns the flat observations (N, obs_size), rewards, terminated, truncated and the infos as
+        (cols, rows, extras): ``cols`` = (world indices, {key: array over those worlds}), ``rows`` = {world: its
+        whole info dict} (worlds reset in this step), ``extras`` = {world: more keys} (a divergence's message)."""
         acts = self.check_actions(actions)  # before anything changes: a bad batch steps no world
         if not self._started:
             raise ResetNeeded("step() called before the first reset(); call reset() to start the episodes")
         envs = self.envs
+        n = self.num_envs
         resetting = self._autoreset
         live = ~resetting
-        for i in np.flatnonzero(live):
-            envs[i]._begin_step(acts[i])
+        idx = np.flatnonzero(live).tolist()
+        worlds = [envs[i] for i in idx]
+        A = self._begin(worlds, acts[idx]) if worlds else None
         self._physics(live)
-        n = self.num_envs
-        obs, infos = [None] * n, [None] * n
+        obs = np.empty((n, self._obs_size), dtype=np.float32)
         rew = np.zeros(n)
         term = np.zeros(n, dtype=bool)
         trunc = np.zeros(n, dtype=bool)
+        rows: dict[int, dict] = {}
+        extras: dict[int, dict] = {}
+        cols: dict[str, np.ndarray] = {}
+        if worlds:
+            o, r, te, tr, cols, failures = self._finish(worlds, A)
+            obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
+            for k, msg in failures.items():
+                extras[idx[k]] = {"simulation_error": msg}
+        for i in np.flatnonzero(resetting).tolist():
+            o, rows[i] = envs[i].reset()
+            obs[i] = self._flat(o)
         same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
-        for i in range(n):
-            e = envs[i]
-            if resetting[i]:
-                obs[i], infos[i] = e.reset()
-                continue
-            obs[i], rew[i], term[i], trunc[i], infos[i] = e._finish_step()
-            if same_step and (term[i] or trunc[i]):
-                final_obs, final_info = obs[i], infos[i]
-                obs[i], infos[i] = e.reset()
-                infos[i] = dict(infos[i], final_obs=final_obs, final_info=final_info)
-        self._autoreset = (term | trunc) if not same_step else np.zeros(n, dtype=bool)
+        if same_step:
+            done = np.flatnonzero(term | trunc).tolist()
+            if done:
+                pos = {i: k for k, i in enumerate(idx)}
+                for i in done:
+                    k = pos[i]
+                    final_info = {key: (v[k].item() if v.ndim == 1 else v[k]) for key, v in cols.items()}
+                    final_info.update(extras.pop(i, {}))
+                    final_obs = self._unflat(obs[i].copy())
+                    o, info = envs[i].reset()
+                    obs[i] = self._flat(o)
+                    rows[i] = dict(info, final_obs=final_obs, final_info=final_info)
+            self._autoreset = np.zeros(n, dtype=bool)
+        else:
+            self._autoreset = term | trunc
         self._last_obs = obs
-        return obs, rew, term, trunc, infos
+        return obs, rew, term, trunc, ((idx, cols), rows, extras)
+
+    # ------------------------------------------------------------------ the step's phases over arrays
+    def _begin(self, worlds: list, acts: np.ndarray) -> np.ndarray:
+        """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``, over
+        arrays where the mode runs the controller with a commanded lam); returns the clipped actions."""
+        A = np.maximum(acts, -1.0)
+        np.minimum(A, 1.0, out=A)
+        first = worlds[0]
+        mode = self._mode
+        if mode in ("posture_stiffness", "residual"):
+            if mode == "posture_stiffness":
+                ref, s = first.posture_map.to_posture(A[:, :3]), A[:, 3]
+            else:
+                r = first.cfg["residual"]
+                target = np.array([e._target for e in worlds])
+                ref = first.posture_map.clip(target + r["posture_scale"] * A[:, :3])
+                s = r["stiffness_nominal"] + r["stiffness_scale"] * A[:, 3]
+            # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+            theta, lam, u = first.ctrl.step_batch(ref, first.stiffness_map.to_lam_batch(s))
+            for e, a, th, (ay, az, ps), lam_k in zip(worlds, A, theta, u.tolist(), lam.tolist()):
+                c = e.ctrl
+                c._u, c._ps, c.lam = (ay, az), ps, lam_k
+                e._a, e._theta = a, th
+        else:  # motor (no controller) and posture_compliance (LM dynamics per world)
+            for e, a in zip(worlds, A):
+                e._a, e._theta = a, e._motor_refs(a)
+        if self._hook_before:
+            for e in worlds:
+                e._before_physics(e._t)
+        return A
+
+    def _finish(self, worlds: list, A: np.ndarray):
+        """``VSWristEnv._finish_step`` of the live worlds: each world's simulator and task hooks are read
+        world by world (in the single env's order, so each draws its noise from its own generator as it
+        would alone); the measures' math, rewards, observation and info run over arrays."""
+        first = worlds[0]
+        L = len(worlds)
+        dt = first.ctrl_dt
+        light = first._light_sync
+        P = np.empty((L, 3))
+        D = np.empty((L, 3))
+        contact = [0.0] * L
+        closure = [math.inf] * L
+        failed = [e._failure for e in worlds]
+        hook_contact = self._hook_contact
+        for k, e in enumerate(worlds):
+            e._theta_prev = e._theta
+            e._step += 1
+            e._t = e._step * dt
+            sim = e.sim
+            if light:
+                sim.sync_kinematics()
+            P[k] = sim.posture()
+            D[k] = sim.deflections()
+            if hook_contact:
+                contact[k] = e._contact_force()
+            if failed[k] is None:
+                closure[k] = sim.loop_closure_peak()
+        bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
+        failures: dict[int, str] = {}
+        for k, e in enumerate(worlds):
+            if failed[k] is None and bad[k]:
+                failed[k] = f"non-finite state at t = {e._t:.3f} s"
+            if failed[k] is not None:
+                # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
+                failures[k] = failed[k]
+                closure[k] = math.inf
+                e.sim.reset()
+                e.sim.apply_wrench(np.zeros(3), np.zeros(3))
+                e._measure()
+                P[k], D[k], contact[k] = e._posture, e._defl, e._contact
+        K = np.array([e.params.spring.K for e in worlds])[:, None]
+        d0 = np.array([e.params.spring.delta0 for e in worlds])[:, None]
+        e3 = 2.0 * K * d0 * (np.cosh(D / d0) - 1.0)  # stiffness.spring_energy, per world's springs
+        energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
+        T = np.array([e._reference(e._t) for e in worlds])
+        err = wrap_angle(P - T)
+
+        # world by world: the state the single env keeps, the task's reward terms, noise, simulator-read terms
+        noise = first._noise_std is not None
+        NZ = np.empty((L, 13)) if noise else None
+        raw = np.empty((L, self._obs_size))
+        world_terms = self._world_terms
+        hook_reward = self._hook_reward
+        task_raw = []
+        Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
+        for k, e in enumerate(worlds):
+            c = contact[k]
+            e._posture, e._defl, e._posture_list, e._defl_list = P[k], D[k], Pl[k], Dl[k]
+            e._energy, e._contact, e._closure, e._target = El[k], c, closure[k], T[k]
+            pk = e._peak_contact
+            e._peak_contact = c if c > pk else pk  # = max(pk, c)
+            e._sum_contact_sq += c * c
+            h = e._history
+            h["error"].append(err[k])
+            h["energy"].append(El[k])
+            h["contact"].append(c)
+            if hook_reward:
+                task_raw.append(e._task_reward_terms(err[k]))
+            if noise:
+                e._draw_noise()
+                NZ[k] = e._nz
+            for a, b, name in world_terms:
+                if name == "posture_rate":
+                    raw[k, a:b] = e.sim.posture_rate()
+                elif name == "motor_angles":
+                    raw[k, a:b] = e.sim.motor_angles()
+                elif name == "tool_wrench":
+                    raw[k, a:b] = e.sim.tool_wrench()
+                else:
+                    raw[k, a:b] = e._terms[name].fn()
+        contact_a = np.array(contact)
+        closure_a = np.array(closure)
+        steps = np.array([e._step for e in worlds])
+        lam = np.array([e.ctrl.lam for e in worlds])
+        prev = np.array([e._prev_action for e in worlds])
+        terminated = np.zeros(L, dtype=bool)
+        terminated[list(failures)] = True
+
+        # reward (RewardsMixin._reward over arrays, the same terms in the same order)
+        sc = first.cfg["scales"]
+        rterms = {
+            "tracking": -np.sqrt(_row_sum_sq(first._tracking_error(err))) / sc["tracking"],
+            "energy": -energy / sc["energy"],
+            "action_rate": -_row_sum_sq(A - prev) / A.shape[1],
+            "termination": np.where(terminated, -1.0, 0.0),
+        }
+        if hook_reward:
+            for name in first.task_reward_terms:
+                rterms[name] = np.array([d[name] for d in task_raw])
+        cols: dict[str, np.ndarray] = {}
+        reward = np.zeros(L)
+        for name, w in first.reward_weights.items():
+            v = w * rterms[name]
+            cols[f"reward_{name}"] = v
+            reward += v
+        PA = A.astype(np.float32)
+        time_up = ~terminated & (steps >= first.episode_steps)
+        exceeded = closure_a > first._closure_warn
+        cut = ~terminated & exceeded if first._closure_truncate else np.zeros(L, dtype=bool)
+        truncated = time_up | cut
+        final = (time_up & ~cut).tolist()
+        ends = (terminated | truncated).tolist()
+        for e, pa, end in zip(worlds, PA, ends):
+            e._prev_action = pa
+            e._needs_reset = end
+
+        # observation (ObservationsMixin._observation over arrays)
+        for a, b, name in self._array_terms:
+            if name == "posture":
+                raw[:, a:b] = P if NZ is None else P + NZ[:, 0:3]
+            elif name == "deflections":
+                raw[:, a:b] = D
+            elif name == "spring_torques":
+                raw[:, a:b] = -2.0 * K * np.sinh(D / d0)
+            elif name == "stiffness":
+                raw[:, a:b] = self._coupler_stiffness(first, P, D, K, d0)
+            elif name == "lam":
+                raw[:, a] = lam
+            elif name == "prev_action":
+                raw[:, a:b] = PA
+            elif name == "target":
+                raw[:, a:b] = T
+            elif name == "contact_force":
+                cf = contact_a if NZ is None else contact_a + NZ[:, 12]
+                raw[:, a] = np.where(cf > 0.0, cf, 0.0)  # a touch sensor never reads a pull
+            elif name == "phase":
+                raw[:, a] = steps / first.episode_steps
+        if NZ is not None:
+            for a, b, name in world_terms:
+                if name == "posture_rate":
+                    raw[:, a:b] += NZ[:, 3:6]
+                elif name == "tool_wrench":
+                    raw[:, a:b] += NZ[:, 6:12]
+        np.maximum(raw, first._obs_low, out=raw)
+        np.minimum(raw, first._obs_high, out=raw)
+
+        # info (RewardsMixin._info over arrays)
+        t = steps * dt
+        cols.update(
+            posture_error=np.sqrt(_row_sum_sq(err)),
+            contact_force=contact_a,
+            peak_contact_force=np.array([e._peak_contact for e in worlds]),
+            rms_contact_force=np.sqrt(np.array([e._sum_contact_sq for e in worlds]) / np.maximum(steps, 1)),
+            elastic_energy=energy,
+            lam=lam,
+            loop_closure=closure_a,
+            closure_exceeded=exceeded,
+            time=t,
+            is_success=np.array([bool(e._success()) if f else False for e, f in zip(worlds, final)], dtype=bool),
+        )
+        if self._hook_info:
+            extra = [e._task_info() for e in worlds]
+            for key in extra[0]:
+                cols[key] = np.array([x[key] for x in extra])
+        cols["posture_error_vec"] = err
+        return raw.astype(np.float32), reward, terminated, truncated, cols, failures
+
+    @staticmethod
+    def _coupler_stiffness(first, P, D, K, d0) -> np.ndarray:
+        """The ``stiffness`` term (``ObservationsMixin._obs_stiffness``) of every world: J_a^T diag(sigma_s) J_a
+        at the measured postures, summed leg by leg in the single env's order."""
+        _, Ja, _, _ = first.ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
+        sig = 2.0 * K / d0 * np.cosh(D / d0)  # stiffness.spring_stiffness, per world's springs
+        out = np.empty((P.shape[0], 3))
+        (a0, b0), (a1, b1), (a2, b2) = Ja
+        s0, s1, s2 = sig[:, 0], sig[:, 1], sig[:, 2]
+        out[:, 0] = s0 * a0 * a0 + s1 * a1 * a1 + s2 * a2 * a2
+        out[:, 1] = s0 * a0 * b0 + s1 * a1 * b1 + s2 * a2 * b2
+        out[:, 2] = s0 * b0 * b0 + s1 * b1 * b1 + s2 * b2 * b2
+        return out
 
     # ------------------------------------------------------------------ batching
-    def _stack(self, obs: list):
+    def _flat(self, obs) -> np.ndarray:
+        """A world's observation as the flat float32 row (a dict observation concatenated in term order)."""
         if self._dict_obs:
-            return {k: np.stack([o[k] for o in obs]) for k in self.single_observation_space.spaces}
-        return np.stack(obs)
+            return np.concatenate([obs[name] for name in self._obs_names])
+        return obs
 
-    def _merge_infos(self, infos: list[dict], mask: np.ndarray | None = None) -> dict:
+    def _unflat(self, flat: np.ndarray):
+        """Flat rows (N, obs_size) or one row as the batch's (or a world's) observation."""
+        if self._dict_obs:
+            return {name: flat[..., sl].copy() for name, sl in self._obs_slices.items()}
+        return flat
+
+    def _vector_info(self, cols_, rows: dict, extras: dict) -> dict:
         """Gymnasium's vector info: each key an array over worlds, with a bool mask ``_key`` of the worlds that
-        have it. Keys every world has (the common case) are stacked at once; the rest go through ``_add_info``."""
-        out: dict[str, Any] = {}
+        have it."""
+        idx, cols = cols_
         n = self.num_envs
-        present = [i for i in range(n) if mask is None or mask[i]]
-        if not present:
-            return out
-        keys0 = infos[present[0]].keys()
-        uniform = all(infos[i].keys() == keys0 for i in present)
-        stacked: set = set()
-        if len(present) == n:
-            common = set(keys0)
-            if not uniform:
-                for i in present[1:]:
-                    common &= infos[i].keys()
-            for k in keys0:
-                if k not in common or k in ("final_obs", "final_info"):
-                    continue
-                vals = [d[k] for d in infos]
-                v0 = vals[0]
-                if isinstance(v0, (bool, np.bool_)):
-                    out[k] = np.array(vals, dtype=bool)
-                elif isinstance(v0, (int, float, np.number)):
-                    out[k] = np.array(vals, dtype=type(v0))
-                elif isinstance(v0, np.ndarray):
-                    out[k] = np.stack(vals)
-                else:
-                    continue
-                out[f"_{k}"] = np.ones(n, dtype=bool)
-                stacked.add(k)
-        if uniform and len(stacked) == len(keys0):
-            return out
-        for i in present:
-            rest = {k: v for k, v in infos[i].items() if k not in stacked}
-            if rest:
-                out = self._add_info(out, rest, i)
+        out: dict[str, Any] = {}
+        if cols:
+            mask = np.zeros(n, dtype=bool)
+            mask[idx] = True
+            if rows:
+                mask[list(rows)] = False
+            for key, v in cols.items():
+                full = np.zeros((n,) + v.shape[1:], dtype=v.dtype)
+                full[idx] = v
+                out[key] = full
+                out[f"_{key}"] = mask.copy()
+        for i in sorted(rows):
+            out = self._add_info(out, rows[i], i)
+        for i in sorted(extras):
+            out = self._add_info(out, extras[i], i)
         return out
+
+    def _world_infos(self, cols_, rows: dict, extras: dict) -> list[dict]:
+        """The infos as one dict per world, as the single env returns them (for SB3's adapter)."""
+        idx, cols = cols_
+        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        if cols:
+            keys = list(cols)
+            values = [v.tolist() if v.ndim == 1 else list(v) for v in cols.values()]
+            for i, vals in zip(idx, zip(*values)):
+                infos[i] = dict(zip(keys, vals))
+        for i, extra in extras.items():
+            infos[i].update(extra)
+        for i, info in rows.items():
+            infos[i] = info
+        return infos
 
     # ------------------------------------------------------------------ rendering, closing, pickling
     def render(self, env_index: int | None = None):
