@@ -40,7 +40,7 @@ from .rewards import wrap_angle
 
 # observation terms the batch computes over arrays from what it measured; the others are read world by world
 # (from each world's simulator, or a task's own term)
-ARRAY_TERMS = ("posture", "deflections", "spring_torques", "stiffness", "lam", "prev_action", "target",
+ARRAY_TERMS = ("posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action", "target",
                "contact_force", "phase")
 
 
@@ -334,38 +334,36 @@ class VSWristVectorEnv(VectorEnv):
         L = len(worlds)
         dt = first.ctrl_dt
         light = first._light_sync
-        P = np.empty((L, 3))
-        D = np.empty((L, 3))
         contact = [0.0] * L
-        closure = [math.inf] * L
         failed = [e._failure for e in worlds]
         hook_contact = self._hook_contact
-        for k, e in enumerate(worlds):
+        for e in worlds:
             e._theta_prev = e._theta
             e._step += 1
             e._t = e._step * dt
-            sim = e.sim
-            if light:
-                sim.sync_kinematics()
-            P[k] = sim.posture()
-            D[k] = sim.deflections()
-            if hook_contact:
-                contact[k] = e._contact_force()
-            if failed[k] is None:
-                closure[k] = sim.loop_closure_peak()
+        if hook_contact:
+            contact = [e._contact_force() for e in worlds]
+        sims = [e.sim for e in worlds]
+        for k in range(L):
+            if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure would
+                sims[k].posture()
+        P, D = self._read_posture(sims)
         bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
         failures: dict[int, str] = {}
         for k, e in enumerate(worlds):
             if failed[k] is None and bad[k]:
                 failed[k] = f"non-finite state at t = {e._t:.3f} s"
             if failed[k] is not None:
-                # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
                 failures[k] = failed[k]
-                closure[k] = math.inf
-                e.sim.reset()
-                e.sim.apply_wrench(np.zeros(3), np.zeros(3))
-                e._measure()
-                P[k], D[k], contact[k] = e._posture, e._defl, e._contact
+        closure = self._read_closure(sims, light)
+        for k in failures:
+            # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
+            e = worlds[k]
+            closure[k] = math.inf
+            e.sim.reset()
+            e.sim.apply_wrench(np.zeros(3), np.zeros(3))
+            e._measure()
+            P[k], D[k], contact[k] = e._posture, e._defl, e._contact
         K = np.array([e.params.spring.K for e in worlds])[:, None]
         d0 = np.array([e.params.spring.delta0 for e in worlds])[:, None]
         e3 = 2.0 * K * d0 * (np.cosh(D / d0) - 1.0)  # stiffness.spring_energy, per world's springs
@@ -398,11 +396,7 @@ class VSWristVectorEnv(VectorEnv):
                 e._draw_noise()
                 NZ[k] = e._nz
             for a, b, name in world_terms:
-                if name == "posture_rate":
-                    raw[k, a:b] = e.sim.posture_rate()
-                elif name == "motor_angles":
-                    raw[k, a:b] = e.sim.motor_angles()
-                elif name == "tool_wrench":
+                if name == "tool_wrench":
                     raw[k, a:b] = e.sim.tool_wrench()
                 else:
                     raw[k, a:b] = e._terms[name].fn()
@@ -444,7 +438,14 @@ class VSWristVectorEnv(VectorEnv):
 
         # observation (ObservationsMixin._observation over arrays)
         for a, b, name in self._array_terms:
-            if name == "posture":
+            if name == "posture_rate":
+                raw[:, a:b] = self._read_posture_rate(sims, P)
+                if NZ is not None:
+                    raw[:, a:b] += NZ[:, 3:6]
+            elif name == "motor_angles":
+                s0 = sims[0]
+                raw[:, a:b] = np.array([s._qpos for s in sims])[:, s0._qadr_motor]
+            elif name == "posture":
                 raw[:, a:b] = P if NZ is None else P + NZ[:, 0:3]
             elif name == "deflections":
                 raw[:, a:b] = D
@@ -465,9 +466,7 @@ class VSWristVectorEnv(VectorEnv):
                 raw[:, a] = steps / first.episode_steps
         if NZ is not None:
             for a, b, name in world_terms:
-                if name == "posture_rate":
-                    raw[:, a:b] += NZ[:, 3:6]
-                elif name == "tool_wrench":
+                if name == "tool_wrench":
                     raw[:, a:b] += NZ[:, 6:12]
         np.maximum(raw, first._obs_low, out=raw)
         np.minimum(raw, first._obs_high, out=raw)
@@ -492,6 +491,63 @@ class VSWristVectorEnv(VectorEnv):
                 cols[key] = np.array([x[key] for x in extra])
         cols["posture_error_vec"] = err
         return raw.astype(np.float32), reward, terminated, truncated, cols, failures
+
+    # The simulator reads of the step, gathered from every world's MjData into arrays (the worlds' models
+    # share one layout) and computed as ``WristSim.posture``/``deflections``/``posture_rate``/
+    # ``loop_closure_peak`` compute them, with math's asin/atan2 element by element as those do.
+    @staticmethod
+    def _read_posture(sims: list) -> tuple[np.ndarray, np.ndarray]:
+        """Measured postures (N, 3) and spring deflections (N, 3) (``WristSim.posture``, ``deflections``)."""
+        s0 = sims[0]
+        Q = np.array([s._qpos for s in sims])
+        X = np.array([s._coupler_xmat for s in sims])
+        asin, atan2 = math.asin, math.atan2
+        P = np.empty((len(sims), 3))
+        P[:, 0] = [asin(max(-1.0, min(1.0, -r6))) for r6 in X[:, 6].tolist()]
+        P[:, 1] = [atan2(r3, r0) for r3, r0 in zip(X[:, 3].tolist(), X[:, 0].tolist())]
+        P[:, 2] = Q[:, s0._qadr_ps]
+        return P, Q[:, s0._qadr_q1] - Q[:, s0._qadr_m3]
+
+    @staticmethod
+    def _read_posture_rate(sims: list, P: np.ndarray) -> np.ndarray:
+        """d/dt of the postures (N, 3) (``WristSim.posture_rate``; P: the postures just read)."""
+        s0 = sims[0]
+        C = np.array([s._coupler_cvel for s in sims])
+        V = np.array([s._qvel for s in sims])
+        wx, wy, wz = C[:, 0], C[:, 1], C[:, 2]
+        ay, az = P[:, 0], P[:, 1]
+        sz, cz = np.sin(az), np.cos(az)
+        ax_rate = (cz * wx + sz * wy) / np.cos(ay)
+        out = np.empty((len(sims), 3))
+        out[:, 0] = -sz * wx + cz * wy
+        out[:, 1] = wz + np.sin(ay) * ax_rate
+        out[:, 2] = V[:, s0._vadr_ps]
+        return out
+
+    @staticmethod
+    def _read_closure(sims: list, light: bool) -> list:
+        """``WristSim.loop_closure_peak`` of every world (after ``_advance`` synced it). After a light sync the
+        monitor has not seen the final state: its weld violation (``native.weld_violation``) over arrays."""
+        if not light:
+            return [s.loop_closure_peak() for s in sims]
+        s0 = sims[0]
+        c, ends = s0.coupler_id, s0._end_ids
+        XP = np.array([s.data.xpos for s in sims])
+        XQ = np.array([s.data.xquat for s in sims])
+        worst = np.zeros(len(sims))
+        qc = XQ[:, c]
+        for e in ends:
+            dx, dy, dz = (XP[:, e, j] - XP[:, c, j] for j in range(3))
+            q = XQ[:, e]
+            dot = np.abs(qc[:, 0] * q[:, 0] + qc[:, 1] * q[:, 1] + qc[:, 2] * q[:, 2] + qc[:, 3] * q[:, 3])
+            worst = np.maximum(worst, np.maximum(np.sqrt(dx * dx + dy * dy + dz * dz),
+                                                 2.0 * np.arccos(np.minimum(1.0, dot))))
+        peak = np.array([s._closure_peak[0] for s in sims])
+        stale = [k for k, s in enumerate(sims) if s._stale or not s._light]
+        out = np.where(worst > peak, worst, peak).tolist()
+        for k in stale:  # not synced lightly (a failed step): the world's own accessor
+            out[k] = sims[k].loop_closure_peak()
+        return out
 
     @staticmethod
     def _coupler_stiffness(first, P, D, K, d0) -> np.ndarray:
