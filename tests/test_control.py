@@ -374,5 +374,5 @@ def test_batched_step_is_the_scalar_step_world_by_world(params, gravity):
     for i in (0, n // 2, n - 1):
         q1_s, Ja_s, N_s = ctrl.kinematics_at(u[i, :2])
         np.testing.assert_allclose(q1[i], q1_s, rtol=0, atol=1e-12)
-        np.testing.assert_allclose([[Ja[k][0][i], Ja[k][1][i]] for k in range(3)], Ja_s, rtol=0, atol=1e-12)
+        np.testing.assert_allclose([[Ja[0][k, i], Ja[1][k, i]] for k in range(3)], Ja_s, rtol=0, atol=1e-12)
         np.testing.assert_allclose([x[i] for x in ctrl.basis_batch(Ja)], N_s, rtol=0, atol=1e-12)

@@ -78,6 +78,8 @@ class AnalyticController:
         self._a = g.d * (1.0 - ca)                                # leg_inverse's a
         self._s = g.d * sa                                        # b = sqrt(s^2 - z0^2) = d sin(alpha) sin(q2)
         self._legs = tuple((math.cos(e), math.sin(e)) for e in g.eta)
+        self._legs_ce = np.array([[c] for c, _ in self._legs])
+        self._legs_se = np.array([[s] for _, s in self._legs])
         self._K, self._delta0 = p.spring.K, p.spring.delta0
         self._tau_max = max_leg_torque(p)
         rom = p.range_of_motion
@@ -174,8 +176,9 @@ class AnalyticController:
         return theta, lam_c, np.stack([ay, az, ps], axis=1)
 
     def posture_kinematics_batch(self, ay: np.ndarray, az: np.ndarray, with_q1: bool = True):
-        """``_posture_kinematics`` over arrays: (q1 (N, 3) or None, J_a as 3 legs of 2 (N,) arrays, dO_c/du
-        and dx_c/du as 2 columns of 3 (N,) arrays)."""
+        """``_posture_kinematics`` over arrays, the three legs stacked along a first axis: (q1 (N, 3) or None,
+        J_a as two (3, N) arrays (columns RUD, FE; row k = leg k), dO_c/du and dx_c/du as 2 columns of 3 (N,)
+        arrays)."""
         cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
         mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
         nm = np.sqrt(mx * mx + my * my + mz * mz)
@@ -190,26 +193,26 @@ class AnalyticController:
         proj = nx * bx_ + ny * by_ + nz * bz_
         d1x, d1y, d1z = f * (bx_ - nx * proj), f * (by_ - ny * proj), f * (bz_ - nz * proj)
         a, s2 = self._a, self._s * self._s
-        q1 = np.empty((np.shape(ay)[0], 3)) if with_q1 else None
-        Ja = []
-        atan2 = math.atan2
-        for k, (ce, se) in enumerate(self._legs):
-            y0, z0 = ce * py + se * pz, -se * py + ce * pz
-            b = np.sqrt(np.maximum(s2 - z0 * z0, 1e-300))
-            Y, X = a * px + b * y0, b * px - a * y0
-            R2 = X * X + Y * Y
-            gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
-            gz = (X * y0 - Y * px) * (-z0 / b) / R2
-            if with_q1:
-                q1[:, k] = [atan2(yy, xx) for yy, xx in zip(Y.tolist(), X.tolist())]
-            Ja.append((gx * d0x + gy * (ce * d0y + se * d0z) + gz * (-se * d0y + ce * d0z),
-                       gx * d1x + gy * (ce * d1y + se * d1z) + gz * (-se * d1y + ce * d1z)))
-        return q1, Ja, ((d0x, d0y, d0z), (d1x, d1y, d1z)), ((ax_, ay_, az_), (bx_, by_, bz_))
+        ce, se = self._legs_ce, self._legs_se  # (3, 1): leg k's cos/sin(eta_k), broadcast over the N postures
+        y0, z0 = ce * py + se * pz, -se * py + ce * pz
+        b = np.sqrt(np.maximum(s2 - z0 * z0, 1e-300))
+        Y, X = a * px + b * y0, b * px - a * y0
+        R2 = X * X + Y * Y
+        gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
+        gz = (X * y0 - Y * px) * (-z0 / b) / R2
+        q1 = None
+        if with_q1:
+            atan2 = math.atan2
+            q1 = np.array([atan2(yy, xx) for yy, xx in zip(Y.T.ravel().tolist(), X.T.ravel().tolist())])
+            q1 = q1.reshape(-1, 3)
+        J0 = gx * d0x + gy * (ce * d0y + se * d0z) + gz * (-se * d0y + ce * d0z)
+        J1 = gx * d1x + gy * (ce * d1y + se * d1z) + gz * (-se * d1y + ce * d1z)
+        return q1, (J0, J1), ((d0x, d0y, d0z), (d1x, d1y, d1z)), ((ax_, ay_, az_), (bx_, by_, bz_))
 
     @staticmethod
     def basis_batch(Ja):
-        """``_basis`` over arrays: N as three (N,) arrays."""
-        (a0, b0), (a1, b1), (a2, b2) = Ja
+        """``_basis`` over arrays (J_a as ``posture_kinematics_batch`` gives it): N as three (N,) arrays."""
+        (a0, a1, a2), (b0, b1, b2) = Ja
         n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
         inv = 1.0 / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         inv = np.where(n0 + n1 + n2 > 0, -inv, inv)
@@ -224,7 +227,7 @@ class AnalyticController:
 
     @staticmethod
     def _min_norm_torques_batch(Ja, w):
-        (a0, b0), (a1, b1), (a2, b2) = Ja
+        (a0, a1, a2), (b0, b1, b2) = Ja
         p = a0 * a0 + a1 * a1 + a2 * a2
         q = a0 * b0 + a1 * b1 + a2 * b2
         r = b0 * b0 + b1 * b1 + b2 * b2

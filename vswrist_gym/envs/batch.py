@@ -554,13 +554,11 @@ class VSWristVectorEnv(VectorEnv):
         """The ``stiffness`` term (``ObservationsMixin._obs_stiffness``) of every world: J_a^T diag(sigma_s) J_a
         at the measured postures, summed leg by leg in the single env's order."""
         _, Ja, _, _ = first.ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
-        sig = 2.0 * K / d0 * np.cosh(D / d0)  # stiffness.spring_stiffness, per world's springs
+        sig = (2.0 * K / d0 * np.cosh(D / d0)).T  # stiffness.spring_stiffness, per world's springs; (3, N)
+        J0, J1 = Ja
         out = np.empty((P.shape[0], 3))
-        (a0, b0), (a1, b1), (a2, b2) = Ja
-        s0, s1, s2 = sig[:, 0], sig[:, 1], sig[:, 2]
-        out[:, 0] = s0 * a0 * a0 + s1 * a1 * a1 + s2 * a2 * a2
-        out[:, 1] = s0 * a0 * b0 + s1 * a1 * b1 + s2 * a2 * b2
-        out[:, 2] = s0 * b0 * b0 + s1 * b1 * b1 + s2 * b2 * b2
+        for j, x in enumerate((sig * J0 * J0, sig * J0 * J1, sig * J1 * J1)):
+            out[:, j] = x[0] + x[1] + x[2]  # leg by leg, as the single env sums
         return out
 
     # ------------------------------------------------------------------ batching
