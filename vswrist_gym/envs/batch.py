@@ -347,7 +347,7 @@ class VSWristVectorEnv(VectorEnv):
         for k in range(L):
             if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure would
                 sims[k].posture()
-        P, D = self._read_posture(sims)
+        P, D, Q = self._read_posture(sims)
         bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
         failures: dict[int, str] = {}
         for k, e in enumerate(worlds):
@@ -364,6 +364,7 @@ class VSWristVectorEnv(VectorEnv):
             e.sim.apply_wrench(np.zeros(3), np.zeros(3))
             e._measure()
             P[k], D[k], contact[k] = e._posture, e._defl, e._contact
+            Q[k] = e.sim._qpos
         K = np.array([e.params.spring.K for e in worlds])[:, None]
         d0 = np.array([e.params.spring.delta0 for e in worlds])[:, None]
         e3 = 2.0 * K * d0 * (np.cosh(D / d0) - 1.0)  # stiffness.spring_energy, per world's springs
@@ -373,33 +374,36 @@ class VSWristVectorEnv(VectorEnv):
 
         # world by world: the state the single env keeps, the task's reward terms, noise, simulator-read terms
         noise = first._noise_std is not None
-        NZ = np.empty((L, 13)) if noise else None
         raw = np.empty((L, self._obs_size))
         world_terms = self._world_terms
         hook_reward = self._hook_reward
         task_raw = []
+        nz_rows = []
+        term_vals: list[list] = [[] for _ in world_terms]
         Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
-        for k, e in enumerate(worlds):
-            c = contact[k]
-            e._posture, e._defl, e._posture_list, e._defl_list = P[k], D[k], Pl[k], Dl[k]
-            e._energy, e._contact, e._closure, e._target = El[k], c, closure[k], T[k]
+        for e, p, d, pl, dl, en, c, cl, tg, er in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err):
+            e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
+            e._energy, e._contact, e._closure, e._target = en, c, cl, tg
             pk = e._peak_contact
             e._peak_contact = c if c > pk else pk  # = max(pk, c)
             e._sum_contact_sq += c * c
             h = e._history
-            h["error"].append(err[k])
-            h["energy"].append(El[k])
+            h["error"].append(er)
+            h["energy"].append(en)
             h["contact"].append(c)
             if hook_reward:
-                task_raw.append(e._task_reward_terms(err[k]))
+                task_raw.append(e._task_reward_terms(er))
             if noise:
                 e._draw_noise()
-                NZ[k] = e._nz
-            for a, b, name in world_terms:
-                if name == "tool_wrench":
-                    raw[k, a:b] = e.sim.tool_wrench()
-                else:
-                    raw[k, a:b] = e._terms[name].fn()
+                nz_rows.append(e._nz)
+            for vals, (a, b, name) in zip(term_vals, world_terms):
+                vals.append(e.sim.tool_wrench() if name == "tool_wrench" else e._terms[name].fn())
+        NZ = np.array(nz_rows) if noise else None
+        for vals, (a, b, name) in zip(term_vals, world_terms):
+            if b - a == 1:
+                raw[:, a] = np.array(vals, dtype=float).reshape(L)
+            else:
+                raw[:, a:b] = np.array(vals, dtype=float)
         contact_a = np.array(contact)
         closure_a = np.array(closure)
         steps = np.array([e._step for e in worlds])
@@ -444,7 +448,7 @@ class VSWristVectorEnv(VectorEnv):
                     raw[:, a:b] += NZ[:, 3:6]
             elif name == "motor_angles":
                 s0 = sims[0]
-                raw[:, a:b] = np.array([s._qpos for s in sims])[:, s0._qadr_motor]
+                raw[:, a:b] = Q[:, s0._qadr_motor]
             elif name == "posture":
                 raw[:, a:b] = P if NZ is None else P + NZ[:, 0:3]
             elif name == "deflections":
@@ -496,8 +500,9 @@ class VSWristVectorEnv(VectorEnv):
     # share one layout) and computed as ``WristSim.posture``/``deflections``/``posture_rate``/
     # ``loop_closure_peak`` compute them, with math's asin/atan2 element by element as those do.
     @staticmethod
-    def _read_posture(sims: list) -> tuple[np.ndarray, np.ndarray]:
-        """Measured postures (N, 3) and spring deflections (N, 3) (``WristSim.posture``, ``deflections``)."""
+    def _read_posture(sims: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Measured postures (N, 3) and spring deflections (N, 3) (``WristSim.posture``, ``deflections``), and
+        the joint positions they come from (N, nq)."""
         s0 = sims[0]
         Q = np.array([s._qpos for s in sims])
         X = np.array([s._coupler_xmat for s in sims])
@@ -506,7 +511,7 @@ class VSWristVectorEnv(VectorEnv):
         P[:, 0] = [asin(max(-1.0, min(1.0, -r6))) for r6 in X[:, 6].tolist()]
         P[:, 1] = [atan2(r3, r0) for r3, r0 in zip(X[:, 3].tolist(), X[:, 0].tolist())]
         P[:, 2] = Q[:, s0._qadr_ps]
-        return P, Q[:, s0._qadr_q1] - Q[:, s0._qadr_m3]
+        return P, Q[:, s0._qadr_q1] - Q[:, s0._qadr_m3], Q
 
     @staticmethod
     def _read_posture_rate(sims: list, P: np.ndarray) -> np.ndarray:
@@ -532,8 +537,8 @@ class VSWristVectorEnv(VectorEnv):
             return [s.loop_closure_peak() for s in sims]
         s0 = sims[0]
         c, ends = s0.coupler_id, s0._end_ids
-        XP = np.array([s.data.xpos for s in sims])
-        XQ = np.array([s.data.xquat for s in sims])
+        XP = np.array([s._xpos for s in sims])
+        XQ = np.array([s._xquat for s in sims])
         worst = np.zeros(len(sims))
         qc = XQ[:, c]
         for e in ends:
