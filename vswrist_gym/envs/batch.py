@@ -38,6 +38,8 @@ from .actions import check_action
 from .base import VSWristEnv
 from .rewards import wrap_angle
 
+ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
+
 # observation terms the batch computes over arrays from what it measured; the others are read world by world
 # (from each world's simulator, or a task's own term)
 ARRAY_TERMS = ("posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action", "target",
@@ -91,12 +93,14 @@ class VSWristVectorEnv(VectorEnv):
     ``config``/``overrides``: as for ``gym.make`` (the same for every world). ``threads``: physics threads
     (default: the cores available; 1 = serial). ``autoreset_mode``: NEXT_STEP (Gymnasium's default) or
     SAME_STEP (the reset observation is returned at once, the last one in ``info["final_obs"]``).
+    ``array_step``: compute the step's common work over arrays (default: with ``ARRAY_MIN_WORLDS`` worlds or
+    more) or world by world through the single env's phases; both give the same numbers.
     """
 
     def __init__(self, env_id: str, num_envs: int = 1, render_mode: str | None = None,
                  config: Mapping[str, Any] | None = None, threads: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, max_episode_steps: int | None = None,
-                 **overrides: Any):
+                 array_step: bool | None = None, **overrides: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.autoreset_mode = AutoresetMode(autoreset_mode)
@@ -139,6 +143,9 @@ class VSWristVectorEnv(VectorEnv):
         spans = [(sl.start, sl.stop, name) for name, sl in first.obs_slices.items()]
         self._array_terms = [x for x in spans if x[2] in ARRAY_TERMS]
         self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS]
+        # below ARRAY_MIN_WORLDS worlds the fixed cost of the array calls outweighs the per-world Python they
+        # replace: such batches step world by world through the single env's phases (the same numbers)
+        self.array_step = self.num_envs >= ARRAY_MIN_WORLDS if array_step is None else bool(array_step)
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         self.set_threads(threads)
@@ -260,7 +267,11 @@ class VSWristVectorEnv(VectorEnv):
         live = ~resetting
         idx = np.flatnonzero(live).tolist()
         worlds = [envs[i] for i in idx]
-        A = self._begin(worlds, acts[idx]) if worlds else None
+        per_world = not self.array_step
+        if per_world:  # the single env's phases, world by world
+            for e, i in zip(worlds, idx):
+                e._begin_step(acts[i])
+        A = self._begin(worlds, acts[idx]) if worlds and not per_world else None
         self._physics(live)
         obs = np.empty((n, self._obs_size), dtype=np.float32)
         rew = np.zeros(n)
@@ -269,7 +280,11 @@ class VSWristVectorEnv(VectorEnv):
         rows: dict[int, dict] = {}
         extras: dict[int, dict] = {}
         cols: dict[str, np.ndarray] = {}
-        if worlds:
+        if per_world:
+            for e, i in zip(worlds, idx):
+                o, rew[i], term[i], trunc[i], rows[i] = e._finish_step()
+                obs[i] = self._flat(o)
+        elif worlds:
             o, r, te, tr, cols, failures = self._finish(worlds, A)
             obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
             for k, msg in failures.items():
@@ -283,9 +298,12 @@ class VSWristVectorEnv(VectorEnv):
             if done:
                 pos = {i: k for k, i in enumerate(idx)}
                 for i in done:
-                    k = pos[i]
-                    final_info = {key: (v[k].item() if v.ndim == 1 else v[k]) for key, v in cols.items()}
-                    final_info.update(extras.pop(i, {}))
+                    if per_world:
+                        final_info = rows[i]
+                    else:
+                        k = pos[i]
+                        final_info = {key: (v[k].item() if v.ndim == 1 else v[k]) for key, v in cols.items()}
+                        final_info.update(extras.pop(i, {}))
                     final_obs = self._unflat(obs[i].copy())
                     o, info = envs[i].reset()
                     obs[i] = self._flat(o)
@@ -590,9 +608,11 @@ class VSWristVectorEnv(VectorEnv):
             mask[idx] = True
             if rows:
                 mask[list(rows)] = False
-            for key, v in cols.items():
+            for key, v in (cols.items() if mask.any() else ()):
                 full = np.zeros((n,) + v.shape[1:], dtype=v.dtype)
                 full[idx] = v
+                if rows:
+                    full[list(rows)] = 0  # as Gymnasium's vector info leaves the worlds without the key
                 out[key] = full
                 out[f"_{key}"] = mask.copy()
         for i in sorted(rows):
