@@ -362,3 +362,36 @@ def test_array_step_equals_the_world_by_world_step(env_id, cfg):
             assert out_f[2][2] and out_f[4]["final_info"]["simulation_error"][2]
     for venv in (fast, slow):
         venv.close()
+
+
+def test_sb3_adapter_infos_are_the_same_on_both_steps():
+    """SB3's adapter reads one info dict per world (``step_worlds``): the array step builds them from its
+    arrays; they must be the single env's dicts, terminal observations and time-limit flags included."""
+    from vswrist_gym.agents.vec_env import BatchVecEnv
+
+    cfg = {"episode_s": 0.1}
+    fast = BatchVecEnv("VSWrist/Drill-v0", 3, env_kwargs={"config": cfg, "array_step": True}, threads=1)
+    slow = BatchVecEnv("VSWrist/Drill-v0", 3, env_kwargs={"config": cfg, "array_step": False}, threads=1)
+    assert fast.venv.array_step and not slow.venv.array_step
+    for v in (fast, slow):
+        v.seed(3)
+        v.reset()
+    rng = np.random.default_rng(1)
+    ends = 0
+    for t in range(12):
+        acts = rng.uniform(-1, 1, (3, 4))
+        (of, rf, df, inf), (os_, rs, ds, ins) = fast.step(acts), slow.step(acts)
+        np.testing.assert_allclose(of, os_, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(rf, rs, rtol=0, atol=1e-6)  # float32 rewards
+        np.testing.assert_array_equal(df, ds)
+        for a, b in zip(inf, ins):
+            assert set(a) == set(b), t
+            for k, v in b.items():
+                if isinstance(v, str):
+                    assert a[k] == v
+                else:
+                    np.testing.assert_allclose(a[k], v, rtol=0, atol=1e-9, err_msg=f"step {t} {k}")
+            ends += "terminal_observation" in b
+    assert ends >= 3
+    fast.close()
+    slow.close()
