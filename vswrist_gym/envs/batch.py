@@ -213,15 +213,14 @@ class VSWristVectorEnv(VectorEnv):
                 raise ResetNeeded("the first reset() must reset every world (no reset_mask)")
         super().reset(seed=seed if isinstance(seed, (int, np.integer)) else None)
         obs = self._last_obs.copy() if self._started else np.zeros((self.num_envs, self._obs_size), np.float32)
-        out: dict[str, Any] = {}
+        infos = [{} for _ in range(self.num_envs)]
         for i in np.flatnonzero(mask).tolist():
-            o, info = self.envs[i].reset(seed=seeds[i], options=options)
+            o, infos[i] = self.envs[i].reset(seed=seeds[i], options=options)
             obs[i] = self._flat(o)
-            out = self._add_info(out, info, i)
             self._autoreset[i] = False
         self._started = True
         self._last_obs = obs
-        return self._unflat(obs), out
+        return self._unflat(obs), self._merge_infos(infos, mask)
 
     def check_actions(self, actions) -> np.ndarray:
         """The batch of actions as float64 (N, action_dim), or a ``ValueError`` naming the env index."""
@@ -602,6 +601,8 @@ class VSWristVectorEnv(VectorEnv):
         have it."""
         idx, cols = cols_
         n = self.num_envs
+        if not cols and not extras and len(rows) == n:  # world by world: stack the worlds' dicts
+            return self._merge_infos([rows[i] for i in range(n)])
         out: dict[str, Any] = {}
         if cols:
             mask = np.zeros(n, dtype=bool)
@@ -619,6 +620,45 @@ class VSWristVectorEnv(VectorEnv):
             out = self._add_info(out, rows[i], i)
         for i in sorted(extras):
             out = self._add_info(out, extras[i], i)
+        return out
+
+    def _merge_infos(self, infos: list[dict], mask: np.ndarray | None = None) -> dict:
+        """Gymnasium's vector info: each key an array over worlds, with a bool mask ``_key`` of the worlds that
+        have it. Keys every world has (the common case) are stacked at once; the rest go through ``_add_info``."""
+        out: dict[str, Any] = {}
+        n = self.num_envs
+        present = [i for i in range(n) if mask is None or mask[i]]
+        if not present:
+            return out
+        keys0 = infos[present[0]].keys()
+        uniform = all(infos[i].keys() == keys0 for i in present)
+        stacked: set = set()
+        if len(present) == n:
+            common = set(keys0)
+            if not uniform:
+                for i in present[1:]:
+                    common &= infos[i].keys()
+            for k in keys0:
+                if k not in common or k in ("final_obs", "final_info"):
+                    continue
+                vals = [d[k] for d in infos]
+                v0 = vals[0]
+                if isinstance(v0, (bool, np.bool_)):
+                    out[k] = np.array(vals, dtype=bool)
+                elif isinstance(v0, (int, float, np.number)):
+                    out[k] = np.array(vals, dtype=type(v0))
+                elif isinstance(v0, np.ndarray):
+                    out[k] = np.stack(vals)
+                else:
+                    continue
+                out[f"_{k}"] = np.ones(n, dtype=bool)
+                stacked.add(k)
+        if uniform and len(stacked) == len(keys0):
+            return out
+        for i in present:
+            rest = {k: v for k, v in infos[i].items() if k not in stacked}
+            if rest:
+                out = self._add_info(out, rest, i)
         return out
 
     def _world_infos(self, cols_, rows: dict, extras: dict) -> list[dict]:
