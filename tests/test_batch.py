@@ -395,3 +395,19 @@ def test_sb3_adapter_infos_are_the_same_on_both_steps():
     assert ends >= 3
     fast.close()
     slow.close()
+
+
+def test_a_task_overriding_a_step_method_is_stepped_world_by_world(monkeypatch):
+    from vswrist_gym.envs.base import VSWristEnv
+    from vswrist_gym.envs.load_hold import LoadHoldEnv
+
+    def _info(self, weighted, final, err=None):
+        return dict(VSWristEnv._info(self, weighted, final, err), extra_metric=1.5)
+
+    monkeypatch.setattr(LoadHoldEnv, "_info", _info, raising=False)
+    venv = make_batch("VSWrist/LoadHold-v0", n=8)
+    assert not venv.unwrapped.array_step  # the array step would skip the override
+    venv.reset(seed=0)
+    _, _, _, _, info = venv.step(np.zeros(venv.action_space.shape))
+    assert info["_extra_metric"].all() and (info["extra_metric"] == 1.5).all()
+    venv.close()

@@ -39,6 +39,11 @@ from .base import VSWristEnv
 from .rewards import wrap_angle
 
 ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
+# the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
+# by world); the hooks it calls per world, or over arrays (``_tracking_error``), stay the task's
+STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
+                "_raw_observation", "_draw_noise", "_obs_posture", "_obs_posture_rate", "_obs_contact",
+                "_obs_spring_torques", "_obs_stiffness", "_obs_terms")
 
 # observation terms the batch computes over arrays from what it measured; the others are read world by world
 # (from each world's simulator, or a task's own term)
@@ -141,11 +146,16 @@ class VSWristVectorEnv(VectorEnv):
         self._obs_names = [t.name for t in first.obs_terms]
         self._obs_slices = dict(first.obs_slices)
         spans = [(sl.start, sl.stop, name) for name, sl in first.obs_slices.items()]
-        self._array_terms = [x for x in spans if x[2] in ARRAY_TERMS]
-        self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS]
+        own = {t.name for t in first._task_obs_terms()}  # a task's own term of a base term's name is its own
+        self._array_terms = [x for x in spans if x[2] in ARRAY_TERMS and x[2] not in own]
+        self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS or x[2] in own]
+        # The array step implements the base class's step methods; a task that overrides one of them (rather
+        # than a hook) is stepped world by world, so that its override runs.
+        overridden = [m for m in STEP_METHODS if getattr(cls, m) is not getattr(VSWristEnv, m)]
         # below ARRAY_MIN_WORLDS worlds the fixed cost of the array calls outweighs the per-world Python they
         # replace: such batches step world by world through the single env's phases (the same numbers)
-        self.array_step = self.num_envs >= ARRAY_MIN_WORLDS if array_step is None else bool(array_step)
+        self.array_step = (self.num_envs >= ARRAY_MIN_WORLDS if array_step is None else bool(array_step)) \
+            and not overridden
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         self.set_threads(threads)
