@@ -7,7 +7,9 @@ works per world). One ``step`` of the batch:
    env index), so a bad batch changes nothing;
 2. worlds that ended on the previous step are reset (``autoreset_mode`` NEXT_STEP, the default) or, with
    SAME_STEP, right after the step that ended them;
-3. the Python pre-physics phase of every world (action -> controller -> motor references, task loads);
+3. before the physics: action clipping and maps, and the analytic controller (modes ``posture_stiffness`` and
+   ``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics
+   and the ``motor`` mode world by world; then each task's ``_before_physics`` hook world by world;
 4. the physics of all worlds: one control period each, ``mj_step(m, d, nstep)`` per world on a pool of
    ``threads`` threads, each thread a contiguous chunk of worlds. MuJoCo's bindings release the GIL inside
    ``mj_step``, and the compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and
@@ -15,7 +17,18 @@ works per world). One ``step`` of the batch:
    lives in each MjData's ``plugin_data``/``plugin_state``), so worlds advance in parallel; no task steps
    substep by substep from Python. With the Python fallback callbacks (no C compiler) each substep re-enters
    Python, so threads would only contend for the GIL: the batch then steps serially;
-5. the post-physics phase of every world (measures, reward, observation, info), stacked.
+5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure: gathered
+   from the MjData into (N, .) arrays), its task hooks (``_contact_force``, ``_reference``,
+   ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own
+   generator, in the single env's order) run world by world; the measures' math, divergence checks, the common
+   reward terms, the observation and the info (Gymnasium's vector info: arrays and ``_key`` masks) are computed
+   over arrays, each with the single env's operations in the single env's order, so world i of a batch is the
+   single env with seed s + i (to the bit on one machine: ``tests/test_batch.py`` checks 1e-9).
+
+Steps 3 and 5 are ``VSWristEnv._begin_step``/``_finish_step`` written over arrays (the "array step"); a batch
+of fewer than ``ARRAY_MIN_WORLDS`` worlds (where the array calls' fixed cost outweighs the Python they save), a
+task that overrides one of ``STEP_METHODS``, or ``array_step=False`` runs those two methods world by world
+instead. The single env keeps its scalar step (``gym.make``): the same numbers, and faster for one world.
 
 Seeding follows Gymnasium: ``reset(seed=s)`` seeds world i with ``s + i`` (a list gives one seed per world), so
 world i replays ``gym.make(id).reset(seed=s + i)`` step for step (``tests/test_batch.py``).
