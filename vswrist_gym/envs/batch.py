@@ -381,12 +381,14 @@ class VSWristVectorEnv(VectorEnv):
             e._theta_prev = e._theta
             e._step += 1
             e._t = e._step * dt
-        if hook_contact:
-            contact = [e._contact_force() for e in worlds]
         sims = [e.sim for e in worlds]
         for k in range(L):
-            if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure would
+            if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure does
+                if light:
+                    sims[k].sync_kinematics()
                 sims[k].posture()
+        if hook_contact:
+            contact = [e._contact_force() for e in worlds]
         P, D, Q = self._read_posture(sims)
         bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
         failures: dict[int, str] = {}
