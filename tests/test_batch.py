@@ -41,7 +41,7 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy):
     # episodes of 25 control steps (Hammer runs at 100 Hz), so that every world resets several times
     cfg = {"episode_s": 0.25 if env_id == "VSWrist/Hammer-v0" else 0.5, "randomize": {"latency": {"enabled": True}}}
     for seed in (2, 9):
-        venv = make_batch(env_id, config=cfg, threads=2)
+        venv = make_batch(env_id, config=cfg, threads=2, array_step=True)  # the array step, though N is small
         singles = [gym.make(env_id, config=cfg) for _ in range(N)]
         rng = np.random.default_rng(seed)
         obs, vinfo = venv.reset(seed=seed)
@@ -305,4 +305,109 @@ def test_reset_mask_resets_only_the_masked_worlds():
     np.testing.assert_array_equal(obs2[[0, 2]], obs1[[0, 2]])  # untouched worlds keep their observation
     assert not np.array_equal(obs2[1], obs1[1]) and list(info["_posture_error"]) == [False, True, False]
     assert venv.envs[0]._step == 1 and venv.envs[1]._step == 0
+    venv.close()
+
+
+def _same_vector_info(a: dict, b: dict, where: str) -> None:
+    assert set(a) == set(b), where
+    for k, v in b.items():
+        if k == "final_obs":
+            for x, y in zip(a[k], v):
+                assert (x is None) == (y is None), where
+                if x is not None:
+                    for name in (x if isinstance(x, dict) else [None]):
+                        np.testing.assert_allclose(x[name] if name else x, y[name] if name else y, atol=1e-9)
+        elif isinstance(v, dict):
+            _same_vector_info(a[k], v, f"{where} {k}")
+        elif v.dtype == object:
+            assert list(a[k]) == list(v), f"{where} info {k}"
+        else:
+            np.testing.assert_allclose(a[k], v, rtol=0, atol=1e-9, err_msg=f"{where} info {k}")
+
+
+@pytest.mark.parametrize("env_id, cfg", [
+    ("VSWrist/Polish-v1", {"obs_mode": "dict", "action_mode": "residual", "gravity_compensation": True,
+                           "randomize": {"spring_K": {"enabled": True, "range": [0.7, 1.3]}}}),
+    ("VSWrist/Hammer-v0", {"action_mode": "motor", "stiffness_map": "linear"}),
+    ("VSWrist/Insertion-v0", {"action_mode": "posture_compliance"}),
+])
+def test_array_step_equals_the_world_by_world_step(env_id, cfg):
+    """The array step against the single env's phases run world by world (what a batch below
+    ARRAY_MIN_WORLDS does by default), in the modes and settings the equivalence test above leaves out:
+    dict observations, residual mode with gravity compensation, per-world spring models, motor and compliance
+    modes, SAME_STEP autoresets and a divergence."""
+    from vswrist_gym.envs.batch import ARRAY_MIN_WORLDS
+
+    cfg = dict(cfg, episode_s=0.2)
+    kw = dict(config=cfg, threads=1, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    fast, slow = make_batch(env_id, array_step=True, **kw), make_batch(env_id, **kw)
+    assert N < ARRAY_MIN_WORLDS and not slow.unwrapped.array_step
+    rng = np.random.default_rng(0)
+    for venv in (fast, slow):
+        venv.reset(seed=7)
+    for t in range(30):
+        acts = rng.uniform(-1, 1, fast.action_space.shape)
+        if t == 12:
+            for venv in (fast, slow):
+                venv.unwrapped.envs[2].data.qvel[:] = 1e12
+        out_f, out_s = fast.step(acts), slow.step(acts)
+        for a, b in zip(out_f[:4], out_s[:4]):
+            if isinstance(a, dict):
+                for k in a:
+                    np.testing.assert_allclose(a[k], b[k], rtol=0, atol=1e-9, err_msg=f"step {t} obs {k}")
+            else:
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-9, err_msg=f"step {t}")
+        _same_vector_info(out_f[4], out_s[4], f"step {t}")
+        if t == 12:
+            assert out_f[2][2] and out_f[4]["final_info"]["simulation_error"][2]
+    for venv in (fast, slow):
+        venv.close()
+
+
+def test_sb3_adapter_infos_are_the_same_on_both_steps():
+    """SB3's adapter reads one info dict per world (``step_worlds``): the array step builds them from its
+    arrays; they must be the single env's dicts, terminal observations and time-limit flags included."""
+    from vswrist_gym.agents.vec_env import BatchVecEnv
+
+    cfg = {"episode_s": 0.1}
+    fast = BatchVecEnv("VSWrist/Drill-v0", 3, env_kwargs={"config": cfg, "array_step": True}, threads=1)
+    slow = BatchVecEnv("VSWrist/Drill-v0", 3, env_kwargs={"config": cfg, "array_step": False}, threads=1)
+    assert fast.venv.array_step and not slow.venv.array_step
+    for v in (fast, slow):
+        v.seed(3)
+        v.reset()
+    rng = np.random.default_rng(1)
+    ends = 0
+    for t in range(12):
+        acts = rng.uniform(-1, 1, (3, 4))
+        (of, rf, df, inf), (os_, rs, ds, ins) = fast.step(acts), slow.step(acts)
+        np.testing.assert_allclose(of, os_, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(rf, rs, rtol=0, atol=1e-6)  # float32 rewards
+        np.testing.assert_array_equal(df, ds)
+        for a, b in zip(inf, ins):
+            assert set(a) == set(b), t
+            for k, v in b.items():
+                if isinstance(v, str):
+                    assert a[k] == v
+                else:
+                    np.testing.assert_allclose(a[k], v, rtol=0, atol=1e-9, err_msg=f"step {t} {k}")
+            ends += "terminal_observation" in b
+    assert ends >= 3
+    fast.close()
+    slow.close()
+
+
+def test_a_task_overriding_a_step_method_is_stepped_world_by_world(monkeypatch):
+    from vswrist_gym.envs.base import VSWristEnv
+    from vswrist_gym.envs.load_hold import LoadHoldEnv
+
+    def _info(self, weighted, final, err=None):
+        return dict(VSWristEnv._info(self, weighted, final, err), extra_metric=1.5)
+
+    monkeypatch.setattr(LoadHoldEnv, "_info", _info, raising=False)
+    venv = make_batch("VSWrist/LoadHold-v0", n=8)
+    assert not venv.unwrapped.array_step  # the array step would skip the override
+    venv.reset(seed=0)
+    _, _, _, _, info = venv.step(np.zeros(venv.action_space.shape))
+    assert info["_extra_metric"].all() and (info["extra_metric"] == 1.5).all()
     venv.close()

@@ -353,3 +353,26 @@ def test_agent_on_a_real_environment_tracks_the_target():
             break
     assert np.all(np.isfinite(errors)) and np.median(errors) < 0.1
     env.close()
+
+
+@pytest.mark.parametrize("gravity", [False, True])
+def test_batched_step_is_the_scalar_step_world_by_world(params, gravity):
+    """``step_batch`` (arrays over N controllers, what a batch of worlds runs) against N calls of the scalar
+    ``step``: references inside and outside the range of motion, lam inside and beyond the allowed range."""
+    ctrl = AnalyticController(params, gravity_compensation=gravity)
+    rng = np.random.default_rng(5)
+    n = 200
+    refs = rng.uniform(-2.0, 2.0, (n, 3))
+    lams = rng.uniform(-2.0, 2.0, n) * ctrl.lambda_range((0.0, 0.0))[1]
+    theta, lam_c, u = ctrl.step_batch(refs, lams)
+    for i in range(n):
+        want = ctrl.step(refs[i], lam=lams[i])
+        np.testing.assert_allclose(theta[i], want, rtol=0, atol=1e-12)
+        assert abs(lam_c[i] - ctrl.lam) <= 1e-12 * max(1.0, abs(ctrl.lam))
+        np.testing.assert_allclose(u[i], ctrl.posture_reference, rtol=0, atol=1e-15)
+    q1, Ja, _, _ = ctrl.posture_kinematics_batch(u[:, 0], u[:, 1])
+    for i in (0, n // 2, n - 1):
+        q1_s, Ja_s, N_s = ctrl.kinematics_at(u[i, :2])
+        np.testing.assert_allclose(q1[i], q1_s, rtol=0, atol=1e-12)
+        np.testing.assert_allclose([[Ja[0][k, i], Ja[1][k, i]] for k in range(3)], Ja_s, rtol=0, atol=1e-12)
+        np.testing.assert_allclose([x[i] for x in ctrl.basis_batch(Ja)], N_s, rtol=0, atol=1e-12)

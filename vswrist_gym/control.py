@@ -78,6 +78,8 @@ class AnalyticController:
         self._a = g.d * (1.0 - ca)                                # leg_inverse's a
         self._s = g.d * sa                                        # b = sqrt(s^2 - z0^2) = d sin(alpha) sin(q2)
         self._legs = tuple((math.cos(e), math.sin(e)) for e in g.eta)
+        self._legs_ce = np.array([[c] for c, _ in self._legs])
+        self._legs_se = np.array([[s] for _, s in self._legs])
         self._K, self._delta0 = p.spring.K, p.spring.delta0
         self._tau_max = max_leg_torque(p)
         rom = p.range_of_motion
@@ -140,6 +142,100 @@ class AnalyticController:
         theta[:3] = q1[:3] - spring_deflection(np.array([t0, t1, t2]), self.params)
         theta[3] = ps
         return theta
+
+    # ------------------------------------------------------------ batched
+    # The same formulas as ``step``/``_posture_kinematics``/``_basis``/the gravity terms, over arrays of N
+    # postures: written operation for operation in the scalar code's order (NumPy's +, -, *, /, sqrt, sin and
+    # cos round as Python's math does; atan2 is taken from math element by element, since NumPy's arctan2 may
+    # differ in the last bit), so a batch of worlds and the single env command the same motor references to
+    # the bit (tests/test_control.py, tests/test_batch.py).
+    def step_batch(self, posture_ref: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Motor references of N controllers sharing these parameters, at once: ``posture_ref`` (N, 3) finite
+        (RUD, FE, PS) references, ``lam`` (N,) internal torques (N m). Returns (theta (N, 4), the clipped lam
+        (N,), the clipped references (N, 3)); the controller's own state is not touched (the caller keeps one
+        controller per world and sets its ``_u``, ``_ps``, ``lam``)."""
+        ref = np.asarray(posture_ref, dtype=float)
+        (rlo, rhi), (flo, fhi), (plo, phi) = self._limits
+        ay = np.minimum(np.maximum(ref[:, 0], rlo), rhi)
+        az = np.minimum(np.maximum(ref[:, 1], flo), fhi)
+        ps = np.minimum(np.maximum(ref[:, 2], plo), phi)
+        q1, Ja, dOc, dxc = self.posture_kinematics_batch(ay, az, with_q1=True)
+        N0, N1, N2 = self.basis_batch(Ja)
+        hi = self._tau_max / np.maximum(np.maximum(np.abs(N0), np.abs(N1)), np.abs(N2))
+        lam_c = np.minimum(np.maximum(np.asarray(lam, dtype=float), -hi), hi)
+        t0, t1, t2 = lam_c * N0, lam_c * N1, lam_c * N2
+        if self.gravity_compensation:
+            g0, g1, g2 = self._min_norm_torques_batch(Ja, self._gravity_from_derivatives_batch(dOc, dxc))
+            tmax = self._tau_max
+            t0 = np.minimum(np.maximum(t0 + g0, -tmax), tmax)
+            t1 = np.minimum(np.maximum(t1 + g1, -tmax), tmax)
+            t2 = np.minimum(np.maximum(t2 + g2, -tmax), tmax)
+        theta = np.empty((ref.shape[0], 4))
+        theta[:, :3] = q1 - spring_deflection(np.stack([t0, t1, t2], axis=1), self.params)
+        theta[:, 3] = ps
+        return theta, lam_c, np.stack([ay, az, ps], axis=1)
+
+    def posture_kinematics_batch(self, ay: np.ndarray, az: np.ndarray, with_q1: bool = True):
+        """``_posture_kinematics`` over arrays, the three legs stacked along a first axis: (q1 (N, 3) or None,
+        J_a as two (3, N) arrays (columns RUD, FE; row k = leg k), dO_c/du and dx_c/du as 2 columns of 3 (N,)
+        arrays)."""
+        cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+        mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
+        nm = np.sqrt(mx * mx + my * my + mz * mz)
+        nx, ny, nz = mx / nm, my / nm, mz / nm
+        r = self._r
+        px, py, pz = r * nx, r * ny, r * nz
+        ax_, ay_, az_ = -cz * sy, -sz * sy, -cy
+        bx_, by_, bz_ = -sz * cy, cz * cy, 0.0
+        f = r / nm
+        proj = nx * ax_ + ny * ay_ + nz * az_
+        d0x, d0y, d0z = f * (ax_ - nx * proj), f * (ay_ - ny * proj), f * (az_ - nz * proj)
+        proj = nx * bx_ + ny * by_ + nz * bz_
+        d1x, d1y, d1z = f * (bx_ - nx * proj), f * (by_ - ny * proj), f * (bz_ - nz * proj)
+        a, s2 = self._a, self._s * self._s
+        ce, se = self._legs_ce, self._legs_se  # (3, 1): leg k's cos/sin(eta_k), broadcast over the N postures
+        y0, z0 = ce * py + se * pz, -se * py + ce * pz
+        b = np.sqrt(np.maximum(s2 - z0 * z0, 1e-300))
+        Y, X = a * px + b * y0, b * px - a * y0
+        R2 = X * X + Y * Y
+        gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
+        gz = (X * y0 - Y * px) * (-z0 / b) / R2
+        q1 = None
+        if with_q1:
+            atan2 = math.atan2
+            q1 = np.array([atan2(yy, xx) for yy, xx in zip(Y.T.ravel().tolist(), X.T.ravel().tolist())])
+            q1 = q1.reshape(-1, 3)
+        J0 = gx * d0x + gy * (ce * d0y + se * d0z) + gz * (-se * d0y + ce * d0z)
+        J1 = gx * d1x + gy * (ce * d1y + se * d1z) + gz * (-se * d1y + ce * d1z)
+        return q1, (J0, J1), ((d0x, d0y, d0z), (d1x, d1y, d1z)), ((ax_, ay_, az_), (bx_, by_, bz_))
+
+    @staticmethod
+    def basis_batch(Ja):
+        """``_basis`` over arrays (J_a as ``posture_kinematics_batch`` gives it): N as three (N,) arrays."""
+        (a0, a1, a2), (b0, b1, b2) = Ja
+        n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        inv = 1.0 / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        inv = np.where(n0 + n1 + n2 > 0, -inv, inv)
+        return n0 * inv, n1 * inv, n2 * inv
+
+    def _gravity_from_derivatives_batch(self, dOc, dxc):
+        gx, gy, gz = self._gravity
+        m_hand, m_coupler = self._masses
+        mo, ml = m_hand + m_coupler, m_hand * self._hand_offset
+        return tuple(-(gx * (mo * ox + ml * xx) + gy * (mo * oy + ml * xy) + gz * (mo * oz + ml * xz))
+                     for (ox, oy, oz), (xx, xy, xz) in zip(dOc, dxc))
+
+    @staticmethod
+    def _min_norm_torques_batch(Ja, w):
+        (a0, a1, a2), (b0, b1, b2) = Ja
+        p = a0 * a0 + a1 * a1 + a2 * a2
+        q = a0 * b0 + a1 * b1 + a2 * b2
+        r = b0 * b0 + b1 * b1 + b2 * b2
+        w0, w1 = w
+        inv_det = 1.0 / (p * r - q * q)
+        x0 = (r * w0 - q * w1) * inv_det
+        x1 = (p * w1 - q * w0) * inv_det
+        return a0 * x0 + b0 * x1, a1 * x0 + b1 * x1, a2 * x0 + b2 * x1
 
     @property
     def posture_reference(self) -> np.ndarray:

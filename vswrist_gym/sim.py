@@ -97,6 +97,7 @@ class WristSim:
         # skip the attribute look-ups and fancy indexing of the generic path
         d = self.data
         self._qpos, self._qvel = d.qpos, d.qvel
+        self._xpos, self._xquat, self._ctrl = d.xpos, d.xquat, d.ctrl
         self._coupler_xmat, self._coupler_cvel = d.xmat[self.coupler_id], d.cvel[self.coupler_id]
         self._qadr_m3 = self._qadr_motor[:3].copy()
         a0 = int(self._act_ids[0])
@@ -175,10 +176,15 @@ class WristSim:
     # ---------------------------------------------------------------- actions
     def set_motor_references(self, theta) -> None:
         """Motor references (4,), rad: PM motors A, B, C (the paper's theta) and the PS motor."""
+        if type(theta) is np.ndarray and theta.shape == (4,) and theta.dtype == np.float64:
+            a, b, c, e = theta.tolist()  # the hot path: x - x is 0 only for finite x
+            if a - a == 0.0 and b - b == 0.0 and c - c == 0.0 and e - e == 0.0:
+                self._ctrl[self._ctrl_idx] = theta
+                return
         theta = np.asarray(theta, dtype=float)
         if theta.shape != (4,) or not np.isfinite(theta).all():
             raise ValueError(f"motor references must be 4 finite angles in rad (A, B, C, PS), got {theta!r}")
-        self.data.ctrl[self._ctrl_idx] = theta
+        self._ctrl[self._ctrl_idx] = theta
 
     def apply_wrench(self, force=(0.0, 0.0, 0.0), torque=(0.0, 0.0, 0.0)) -> None:
         """External force (N) and torque (N m) on the hand at its centre, base frame, held until changed."""

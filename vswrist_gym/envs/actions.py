@@ -41,6 +41,13 @@ class StiffnessMap:
             return f * self.lam_max
         return self.two_k * float(np.sinh(f * self._a))
 
+    def to_lam_batch(self, s: np.ndarray) -> np.ndarray:
+        """``to_lam`` over an array of commands (the same arithmetic, element by element)."""
+        f = 0.5 * (np.minimum(np.maximum(s, -1.0), 1.0) + 1.0)
+        if self.kind == "linear":
+            return f * self.lam_max
+        return self.two_k * np.sinh(f * self._a)
+
     def to_command(self, lam: float) -> float:
         lam = min(max(float(lam), 0.0), self.lam_max)
         f = lam / self.lam_max if self.kind == "linear" else float(np.arcsinh(lam / self.two_k)) / self._a

@@ -74,7 +74,8 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
       reward terms), ``reads_sensors`` (False if it reads only poses: a cheaper update after each step);
 
     and implements the hooks, each for one world (``self`` is the world; a batch calls them world by world, so
-    they may keep episode state on ``self`` and draw only from the ``rng`` they are given):
+    they may keep episode state on ``self`` and draw only from the ``rng`` they are given; the one exception is
+    ``_tracking_error``, which a batch calls once with every world's errors):
 
     * ``_scene(spec)``: add geometry to the MjSpec before compilation (``SceneMixin`` helpers in ``shared``:
       ``_add_tool_geom``, ``_add_touch_sensor``, ``add_mocap_box_body``); ``_scene_ids()``: look up ids after;
@@ -83,7 +84,9 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
     * ``_reference(t) -> (3,)``: the posture reference (RUD, FE, PS) at time t (s);
     * ``_before_physics(t)``: external loads for the coming period (``self.sim.apply_wrench``);
     * ``_contact_force() -> float`` (N, after a step), ``_tracking_error(err)`` (the part of the error the
-      tracking reward counts), ``_task_reward_terms(err) -> {name: unweighted value}``, ``_success() -> bool``
+      tracking reward counts, indexing the last axis only: ``err[..., 1:]``; it gets (3,) or (N, 3)),
+      ``_task_reward_terms(err) -> {name: unweighted value}``, ``_task_info() -> {name: number}`` (extra
+      ``info`` entries, the same keys every step), ``_success() -> bool``
       (at the episode's last step, from ``self._history``), optionally ``_task_obs_terms()`` and
       ``_validate_task()``.
 
@@ -411,10 +414,15 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         return 0.0
 
     def _tracking_error(self, err: np.ndarray) -> np.ndarray:
-        """The part of the posture error (RUD, FE, PS) that the tracking reward counts."""
+        """The part of the posture error (RUD, FE, PS; the last axis) that the tracking reward counts. Index the
+        last axis only (``err[..., 1:]``): a batch passes all its worlds' errors (N, 3) at once."""
         return err
 
     def _task_reward_terms(self, err: np.ndarray) -> dict[str, float]:
+        return {}
+
+    def _task_info(self) -> dict:
+        """Task-specific ``info`` entries of every step and reset (numbers or bools, the same keys each time)."""
         return {}
 
     def _success(self) -> bool:

@@ -7,7 +7,9 @@ works per world). One ``step`` of the batch:
    env index), so a bad batch changes nothing;
 2. worlds that ended on the previous step are reset (``autoreset_mode`` NEXT_STEP, the default) or, with
    SAME_STEP, right after the step that ended them;
-3. the Python pre-physics phase of every world (action -> controller -> motor references, task loads);
+3. before the physics: action clipping and maps, and the analytic controller (modes ``posture_stiffness`` and
+   ``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics
+   and the ``motor`` mode world by world; then each task's ``_before_physics`` hook world by world;
 4. the physics of all worlds: one control period each, ``mj_step(m, d, nstep)`` per world on a pool of
    ``threads`` threads, each thread a contiguous chunk of worlds. MuJoCo's bindings release the GIL inside
    ``mj_step``, and the compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and
@@ -15,7 +17,18 @@ works per world). One ``step`` of the batch:
    lives in each MjData's ``plugin_data``/``plugin_state``), so worlds advance in parallel; no task steps
    substep by substep from Python. With the Python fallback callbacks (no C compiler) each substep re-enters
    Python, so threads would only contend for the GIL: the batch then steps serially;
-5. the post-physics phase of every world (measures, reward, observation, info), stacked.
+5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure: gathered
+   from the MjData into (N, .) arrays), its task hooks (``_contact_force``, ``_reference``,
+   ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own
+   generator, in the single env's order) run world by world; the measures' math, divergence checks, the common
+   reward terms, the observation and the info (Gymnasium's vector info: arrays and ``_key`` masks) are computed
+   over arrays, each with the single env's operations in the single env's order, so world i of a batch is the
+   single env with seed s + i (to the bit on one machine: ``tests/test_batch.py`` checks 1e-9).
+
+Steps 3 and 5 are ``VSWristEnv._begin_step``/``_finish_step`` written over arrays (the "array step"); a batch
+of fewer than ``ARRAY_MIN_WORLDS`` worlds (where the array calls' fixed cost outweighs the Python they save), a
+task that overrides one of ``STEP_METHODS``, or ``array_step=False`` runs those two methods world by world
+instead. The single env keeps its scalar step (``gym.make``): the same numbers, and faster for one world.
 
 Seeding follows Gymnasium: ``reset(seed=s)`` seeds world i with ``s + i`` (a list gives one seed per world), so
 world i replays ``gym.make(id).reset(seed=s + i)`` step for step (``tests/test_batch.py``).
@@ -23,6 +36,7 @@ world i replays ``gym.make(id).reset(seed=s + i)`` step for step (``tests/test_b
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Mapping, Sequence
@@ -34,6 +48,29 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .actions import check_action
+from .base import VSWristEnv
+from .rewards import wrap_angle
+
+ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
+# the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
+# by world); the hooks it calls per world, or over arrays (``_tracking_error``), stay the task's
+STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
+                "_raw_observation", "_draw_noise", "_obs_posture", "_obs_posture_rate", "_obs_contact",
+                "_obs_spring_torques", "_obs_stiffness", "_obs_terms")
+
+# observation terms the batch computes over arrays from what it measured; the others are read world by world
+# (from each world's simulator, or a task's own term)
+ARRAY_TERMS = ("posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action", "target",
+               "contact_force", "phase")
+
+
+def _row_sum_sq(x: np.ndarray) -> np.ndarray:
+    """Sum of squares along the last axis, added column by column in order (as ``rewards._sum_sq``)."""
+    sq = x * x
+    out = sq[..., 0]
+    for j in range(1, sq.shape[-1]):
+        out = out + sq[..., j]
+    return out
 
 
 THREADS_ENV = "VSWRIST_THREADS"  # physics threads of every batch made without ``threads`` (e.g. by vswrist train)
@@ -74,12 +111,14 @@ class VSWristVectorEnv(VectorEnv):
     ``config``/``overrides``: as for ``gym.make`` (the same for every world). ``threads``: physics threads
     (default: the cores available; 1 = serial). ``autoreset_mode``: NEXT_STEP (Gymnasium's default) or
     SAME_STEP (the reset observation is returned at once, the last one in ``info["final_obs"]``).
+    ``array_step``: compute the step's common work over arrays (default: with ``ARRAY_MIN_WORLDS`` worlds or
+    more) or world by world through the single env's phases; both give the same numbers.
     """
 
     def __init__(self, env_id: str, num_envs: int = 1, render_mode: str | None = None,
                  config: Mapping[str, Any] | None = None, threads: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, max_episode_steps: int | None = None,
-                 **overrides: Any):
+                 array_step: bool | None = None, **overrides: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.autoreset_mode = AutoresetMode(autoreset_mode)
@@ -109,6 +148,27 @@ class VSWristVectorEnv(VectorEnv):
         self._dict_obs = first.cfg["obs_mode"] == "dict"
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._started = False
+        # what the array step needs to know of the task (the same for every world)
+        cls = type(first)
+        self._mode = first.cfg["action_mode"]
+        self._hook_before = cls._before_physics is not VSWristEnv._before_physics
+        self._hook_contact = cls._contact_force is not VSWristEnv._contact_force
+        self._hook_reward = cls._task_reward_terms is not VSWristEnv._task_reward_terms
+        self._hook_info = cls._task_info is not VSWristEnv._task_info
+        self._obs_size = first.obs_size
+        self._obs_names = [t.name for t in first.obs_terms]
+        self._obs_slices = dict(first.obs_slices)
+        spans = [(sl.start, sl.stop, name) for name, sl in first.obs_slices.items()]
+        own = {t.name for t in first._task_obs_terms()}  # a task's own term of a base term's name is its own
+        self._array_terms = [x for x in spans if x[2] in ARRAY_TERMS and x[2] not in own]
+        self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS or x[2] in own]
+        # The array step implements the base class's step methods; a task that overrides one of them (rather
+        # than a hook) is stepped world by world, so that its override runs.
+        overridden = [m for m in STEP_METHODS if getattr(cls, m) is not getattr(VSWristEnv, m)]
+        # below ARRAY_MIN_WORLDS worlds the fixed cost of the array calls outweighs the per-world Python they
+        # replace: such batches step world by world through the single env's phases (the same numbers)
+        self.array_step = (self.num_envs >= ARRAY_MIN_WORLDS if array_step is None else bool(array_step)) \
+            and not overridden
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         self.set_threads(threads)
@@ -175,14 +235,15 @@ class VSWristVectorEnv(VectorEnv):
             if not self._started and not mask.all():
                 raise ResetNeeded("the first reset() must reset every world (no reset_mask)")
         super().reset(seed=seed if isinstance(seed, (int, np.integer)) else None)
-        obs = list(self._last_obs) if self._started else [None] * self.num_envs
+        obs = self._last_obs.copy() if self._started else np.zeros((self.num_envs, self._obs_size), np.float32)
         infos = [{} for _ in range(self.num_envs)]
-        for i in np.flatnonzero(mask):
-            obs[i], infos[i] = self.envs[i].reset(seed=seeds[i], options=options)
+        for i in np.flatnonzero(mask).tolist():
+            o, infos[i] = self.envs[i].reset(seed=seeds[i], options=options)
+            obs[i] = self._flat(o)
             self._autoreset[i] = False
         self._started = True
         self._last_obs = obs
-        return self._stack(obs), self._merge_infos(infos, mask)
+        return self._unflat(obs), self._merge_infos(infos, mask)
 
     def check_actions(self, actions) -> np.ndarray:
         """The batch of actions as float64 (N, action_dim), or a ``ValueError`` naming the env index."""
@@ -206,50 +267,385 @@ class VSWristVectorEnv(VectorEnv):
         return arr
 
     def step(self, actions):
-        obs, rew, term, trunc, infos = self._step_core(actions)
-        return self._stack(obs), rew, term, trunc, self._merge_infos(infos)
+        obs, rew, term, trunc, (cols, rows, extras) = self._step_core(actions)
+        return self._unflat(obs), rew, term, trunc, self._vector_info(cols, rows, extras)
 
     def step_worlds(self, actions):
         """One step, returned per world for adapters (SB3): stacked observations, rewards, terminated,
         truncated, and the list of the worlds' own info dicts. Same autoreset rule as ``step``."""
-        obs, rew, term, trunc, infos = self._step_core(actions)
-        return self._stack(obs), rew, term, trunc, infos
+        obs, rew, term, trunc, (cols, rows, extras) = self._step_core(actions)
+        return self._unflat(obs), rew, term, trunc, self._world_infos(cols, rows, extras)
 
     def _step_core(self, actions):
+        """Returns the flat observations (N, obs_size), rewards, terminated, truncated and the infos as
+        (cols, rows, extras): ``cols`` = (world indices, {key: array over those worlds}), ``rows`` = {world: its
+        whole info dict} (worlds reset in this step), ``extras`` = {world: more keys} (a divergence's message)."""
         acts = self.check_actions(actions)  # before anything changes: a bad batch steps no world
         if not self._started:
             raise ResetNeeded("step() called before the first reset(); call reset() to start the episodes")
         envs = self.envs
+        n = self.num_envs
         resetting = self._autoreset
         live = ~resetting
-        for i in np.flatnonzero(live):
-            envs[i]._begin_step(acts[i])
+        idx = np.flatnonzero(live).tolist()
+        worlds = [envs[i] for i in idx]
+        per_world = not self.array_step
+        if per_world:  # the single env's phases, world by world
+            for e, i in zip(worlds, idx):
+                e._begin_step(acts[i])
+        A = self._begin(worlds, acts[idx]) if worlds and not per_world else None
         self._physics(live)
-        n = self.num_envs
-        obs, infos = [None] * n, [None] * n
+        obs = np.empty((n, self._obs_size), dtype=np.float32)
         rew = np.zeros(n)
         term = np.zeros(n, dtype=bool)
         trunc = np.zeros(n, dtype=bool)
+        rows: dict[int, dict] = {}
+        extras: dict[int, dict] = {}
+        cols: dict[str, np.ndarray] = {}
+        if per_world:
+            for e, i in zip(worlds, idx):
+                o, rew[i], term[i], trunc[i], rows[i] = e._finish_step()
+                obs[i] = self._flat(o)
+        elif worlds:
+            o, r, te, tr, cols, failures = self._finish(worlds, A)
+            obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
+            for k, msg in failures.items():
+                extras[idx[k]] = {"simulation_error": msg}
+        for i in np.flatnonzero(resetting).tolist():
+            o, rows[i] = envs[i].reset()
+            obs[i] = self._flat(o)
         same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
-        for i in range(n):
-            e = envs[i]
-            if resetting[i]:
-                obs[i], infos[i] = e.reset()
-                continue
-            obs[i], rew[i], term[i], trunc[i], infos[i] = e._finish_step()
-            if same_step and (term[i] or trunc[i]):
-                final_obs, final_info = obs[i], infos[i]
-                obs[i], infos[i] = e.reset()
-                infos[i] = dict(infos[i], final_obs=final_obs, final_info=final_info)
-        self._autoreset = (term | trunc) if not same_step else np.zeros(n, dtype=bool)
+        if same_step:
+            done = np.flatnonzero(term | trunc).tolist()
+            if done:
+                pos = {i: k for k, i in enumerate(idx)}
+                for i in done:
+                    if per_world:
+                        final_info = rows[i]
+                    else:
+                        k = pos[i]
+                        final_info = {key: (v[k].item() if v.ndim == 1 else v[k]) for key, v in cols.items()}
+                        final_info.update(extras.pop(i, {}))
+                    final_obs = self._unflat(obs[i].copy())
+                    o, info = envs[i].reset()
+                    obs[i] = self._flat(o)
+                    rows[i] = dict(info, final_obs=final_obs, final_info=final_info)
+            self._autoreset = np.zeros(n, dtype=bool)
+        else:
+            self._autoreset = term | trunc
         self._last_obs = obs
-        return obs, rew, term, trunc, infos
+        return obs, rew, term, trunc, ((idx, cols), rows, extras)
+
+    # ------------------------------------------------------------------ the step's phases over arrays
+    def _begin(self, worlds: list, acts: np.ndarray) -> np.ndarray:
+        """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``, over
+        arrays where the mode runs the controller with a commanded lam); returns the clipped actions."""
+        A = np.maximum(acts, -1.0)
+        np.minimum(A, 1.0, out=A)
+        first = worlds[0]
+        mode = self._mode
+        if mode in ("posture_stiffness", "residual"):
+            if mode == "posture_stiffness":
+                ref, s = first.posture_map.to_posture(A[:, :3]), A[:, 3]
+            else:
+                r = first.cfg["residual"]
+                target = np.array([e._target for e in worlds])
+                ref = first.posture_map.clip(target + r["posture_scale"] * A[:, :3])
+                s = r["stiffness_nominal"] + r["stiffness_scale"] * A[:, 3]
+            # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+            theta, lam, u = first.ctrl.step_batch(ref, first.stiffness_map.to_lam_batch(s))
+            for e, a, th, (ay, az, ps), lam_k in zip(worlds, A, theta, u.tolist(), lam.tolist()):
+                c = e.ctrl
+                c._u, c._ps, c.lam = (ay, az), ps, lam_k
+                e._a, e._theta = a, th
+        else:  # motor (no controller) and posture_compliance (LM dynamics per world)
+            for e, a in zip(worlds, A):
+                e._a, e._theta = a, e._motor_refs(a)
+        if self._hook_before:
+            for e in worlds:
+                e._before_physics(e._t)
+        return A
+
+    def _finish(self, worlds: list, A: np.ndarray):
+        """``VSWristEnv._finish_step`` of the live worlds: each world's simulator and task hooks are read
+        world by world (in the single env's order, so each draws its noise from its own generator as it
+        would alone); the measures' math, rewards, observation and info run over arrays."""
+        first = worlds[0]
+        L = len(worlds)
+        dt = first.ctrl_dt
+        light = first._light_sync
+        contact = [0.0] * L
+        failed = [e._failure for e in worlds]
+        hook_contact = self._hook_contact
+        for e in worlds:
+            e._theta_prev = e._theta
+            e._step += 1
+            e._t = e._step * dt
+        sims = [e.sim for e in worlds]
+        for k in range(L):
+            if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure does
+                if light:
+                    sims[k].sync_kinematics()
+                sims[k].posture()
+        if hook_contact:
+            contact = [e._contact_force() for e in worlds]
+        P, D, Q = self._read_posture(sims)
+        bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
+        failures: dict[int, str] = {}
+        for k, e in enumerate(worlds):
+            if failed[k] is None and bad[k]:
+                failed[k] = f"non-finite state at t = {e._t:.3f} s"
+            if failed[k] is not None:
+                failures[k] = failed[k]
+        closure = self._read_closure(sims, light)
+        for k in failures:
+            # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
+            e = worlds[k]
+            closure[k] = math.inf
+            e.sim.reset()
+            e.sim.apply_wrench(np.zeros(3), np.zeros(3))
+            e._measure()
+            P[k], D[k], contact[k] = e._posture, e._defl, e._contact
+            Q[k] = e.sim._qpos
+        K = np.array([e.params.spring.K for e in worlds])[:, None]
+        d0 = np.array([e.params.spring.delta0 for e in worlds])[:, None]
+        e3 = 2.0 * K * d0 * (np.cosh(D / d0) - 1.0)  # stiffness.spring_energy, per world's springs
+        energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
+        T = np.array([e._reference(e._t) for e in worlds])
+        err = wrap_angle(P - T)
+
+        # world by world: the state the single env keeps, the task's reward terms, noise, simulator-read terms
+        noise = first._noise_std is not None
+        raw = np.empty((L, self._obs_size))
+        world_terms = self._world_terms
+        hook_reward = self._hook_reward
+        task_raw = []
+        nz_rows = []
+        term_vals: list[list] = [[] for _ in world_terms]
+        Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
+        for e, p, d, pl, dl, en, c, cl, tg, er in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err):
+            e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
+            e._energy, e._contact, e._closure, e._target = en, c, cl, tg
+            pk = e._peak_contact
+            e._peak_contact = c if c > pk else pk  # = max(pk, c)
+            e._sum_contact_sq += c * c
+            h = e._history
+            h["error"].append(er)
+            h["energy"].append(en)
+            h["contact"].append(c)
+            if hook_reward:
+                task_raw.append(e._task_reward_terms(er))
+            if noise:
+                e._draw_noise()
+                nz_rows.append(e._nz)
+            for vals, (a, b, name) in zip(term_vals, world_terms):
+                vals.append(e.sim.tool_wrench() if name == "tool_wrench" else e._terms[name].fn())
+        NZ = np.array(nz_rows) if noise else None
+        for vals, (a, b, name) in zip(term_vals, world_terms):
+            if b - a == 1:
+                raw[:, a] = np.array(vals, dtype=float).reshape(L)
+            else:
+                raw[:, a:b] = np.array(vals, dtype=float)
+        contact_a = np.array(contact)
+        closure_a = np.array(closure)
+        steps = np.array([e._step for e in worlds])
+        lam = np.array([e.ctrl.lam for e in worlds])
+        prev = np.array([e._prev_action for e in worlds])
+        terminated = np.zeros(L, dtype=bool)
+        terminated[list(failures)] = True
+
+        # reward (RewardsMixin._reward over arrays, the same terms in the same order)
+        sc = first.cfg["scales"]
+        rterms = {
+            "tracking": -np.sqrt(_row_sum_sq(first._tracking_error(err))) / sc["tracking"],
+            "energy": -energy / sc["energy"],
+            "action_rate": -_row_sum_sq(A - prev) / A.shape[1],
+            "termination": np.where(terminated, -1.0, 0.0),
+        }
+        if hook_reward:
+            for name in first.task_reward_terms:
+                rterms[name] = np.array([d[name] for d in task_raw])
+        cols: dict[str, np.ndarray] = {}
+        reward = np.zeros(L)
+        for name, w in first.reward_weights.items():
+            v = w * rterms[name]
+            cols[f"reward_{name}"] = v
+            reward += v
+        PA = A.astype(np.float32)
+        time_up = ~terminated & (steps >= first.episode_steps)
+        exceeded = closure_a > first._closure_warn
+        cut = ~terminated & exceeded if first._closure_truncate else np.zeros(L, dtype=bool)
+        truncated = time_up | cut
+        final = (time_up & ~cut).tolist()
+        ends = (terminated | truncated).tolist()
+        for e, pa, end in zip(worlds, PA, ends):
+            e._prev_action = pa
+            e._needs_reset = end
+
+        # observation (ObservationsMixin._observation over arrays)
+        for a, b, name in self._array_terms:
+            if name == "posture_rate":
+                raw[:, a:b] = self._read_posture_rate(sims, P)
+                if NZ is not None:
+                    raw[:, a:b] += NZ[:, 3:6]
+            elif name == "motor_angles":
+                s0 = sims[0]
+                raw[:, a:b] = Q[:, s0._qadr_motor]
+            elif name == "posture":
+                raw[:, a:b] = P if NZ is None else P + NZ[:, 0:3]
+            elif name == "deflections":
+                raw[:, a:b] = D
+            elif name == "spring_torques":
+                raw[:, a:b] = -2.0 * K * np.sinh(D / d0)
+            elif name == "stiffness":
+                raw[:, a:b] = self._coupler_stiffness(first, P, D, K, d0)
+            elif name == "lam":
+                raw[:, a] = lam
+            elif name == "prev_action":
+                raw[:, a:b] = PA
+            elif name == "target":
+                raw[:, a:b] = T
+            elif name == "contact_force":
+                cf = contact_a if NZ is None else contact_a + NZ[:, 12]
+                raw[:, a] = np.where(cf > 0.0, cf, 0.0)  # a touch sensor never reads a pull
+            elif name == "phase":
+                raw[:, a] = steps / first.episode_steps
+        if NZ is not None:
+            for a, b, name in world_terms:
+                if name == "tool_wrench":
+                    raw[:, a:b] += NZ[:, 6:12]
+        np.maximum(raw, first._obs_low, out=raw)
+        np.minimum(raw, first._obs_high, out=raw)
+
+        # info (RewardsMixin._info over arrays)
+        t = steps * dt
+        cols.update(
+            posture_error=np.sqrt(_row_sum_sq(err)),
+            contact_force=contact_a,
+            peak_contact_force=np.array([e._peak_contact for e in worlds]),
+            rms_contact_force=np.sqrt(np.array([e._sum_contact_sq for e in worlds]) / np.maximum(steps, 1)),
+            elastic_energy=energy,
+            lam=lam,
+            loop_closure=closure_a,
+            closure_exceeded=exceeded,
+            time=t,
+            is_success=np.array([bool(e._success()) if f else False for e, f in zip(worlds, final)], dtype=bool),
+        )
+        if self._hook_info:
+            extra = [e._task_info() for e in worlds]
+            for key in extra[0]:
+                cols[key] = np.array([x[key] for x in extra])
+        cols["posture_error_vec"] = err
+        return raw.astype(np.float32), reward, terminated, truncated, cols, failures
+
+    # The simulator reads of the step, gathered from every world's MjData into arrays (the worlds' models
+    # share one layout) and computed as ``WristSim.posture``/``deflections``/``posture_rate``/
+    # ``loop_closure_peak`` compute them, with math's asin/atan2 element by element as those do.
+    @staticmethod
+    def _read_posture(sims: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Measured postures (N, 3) and spring deflections (N, 3) (``WristSim.posture``, ``deflections``), and
+        the joint positions they come from (N, nq)."""
+        s0 = sims[0]
+        Q = np.array([s._qpos for s in sims])
+        X = np.array([s._coupler_xmat for s in sims])
+        asin, atan2 = math.asin, math.atan2
+        P = np.empty((len(sims), 3))
+        P[:, 0] = [asin(max(-1.0, min(1.0, -r6))) for r6 in X[:, 6].tolist()]
+        P[:, 1] = [atan2(r3, r0) for r3, r0 in zip(X[:, 3].tolist(), X[:, 0].tolist())]
+        P[:, 2] = Q[:, s0._qadr_ps]
+        return P, Q[:, s0._qadr_q1] - Q[:, s0._qadr_m3], Q
+
+    @staticmethod
+    def _read_posture_rate(sims: list, P: np.ndarray) -> np.ndarray:
+        """d/dt of the postures (N, 3) (``WristSim.posture_rate``; P: the postures just read)."""
+        s0 = sims[0]
+        C = np.array([s._coupler_cvel for s in sims])
+        V = np.array([s._qvel for s in sims])
+        wx, wy, wz = C[:, 0], C[:, 1], C[:, 2]
+        ay, az = P[:, 0], P[:, 1]
+        sz, cz = np.sin(az), np.cos(az)
+        ax_rate = (cz * wx + sz * wy) / np.cos(ay)
+        out = np.empty((len(sims), 3))
+        out[:, 0] = -sz * wx + cz * wy
+        out[:, 1] = wz + np.sin(ay) * ax_rate
+        out[:, 2] = V[:, s0._vadr_ps]
+        return out
+
+    @staticmethod
+    def _read_closure(sims: list, light: bool) -> list:
+        """``WristSim.loop_closure_peak`` of every world (after ``_advance`` synced it). After a light sync the
+        monitor has not seen the final state: its weld violation (``native.weld_violation``) over arrays."""
+        if not light:
+            return [s.loop_closure_peak() for s in sims]
+        s0 = sims[0]
+        c, ends = s0.coupler_id, s0._end_ids
+        XP = np.array([s._xpos for s in sims])
+        XQ = np.array([s._xquat for s in sims])
+        worst = np.zeros(len(sims))
+        qc = XQ[:, c]
+        for e in ends:
+            dx, dy, dz = (XP[:, e, j] - XP[:, c, j] for j in range(3))
+            q = XQ[:, e]
+            dot = np.abs(qc[:, 0] * q[:, 0] + qc[:, 1] * q[:, 1] + qc[:, 2] * q[:, 2] + qc[:, 3] * q[:, 3])
+            worst = np.maximum(worst, np.maximum(np.sqrt(dx * dx + dy * dy + dz * dz),
+                                                 2.0 * np.arccos(np.minimum(1.0, dot))))
+        peak = np.array([s._closure_peak[0] for s in sims])
+        stale = [k for k, s in enumerate(sims) if s._stale or not s._light]
+        out = np.where(worst > peak, worst, peak).tolist()
+        for k in stale:  # not synced lightly (a failed step): the world's own accessor
+            out[k] = sims[k].loop_closure_peak()
+        return out
+
+    @staticmethod
+    def _coupler_stiffness(first, P, D, K, d0) -> np.ndarray:
+        """The ``stiffness`` term (``ObservationsMixin._obs_stiffness``) of every world: J_a^T diag(sigma_s) J_a
+        at the measured postures, summed leg by leg in the single env's order."""
+        _, Ja, _, _ = first.ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
+        sig = (2.0 * K / d0 * np.cosh(D / d0)).T  # stiffness.spring_stiffness, per world's springs; (3, N)
+        J0, J1 = Ja
+        out = np.empty((P.shape[0], 3))
+        for j, x in enumerate((sig * J0 * J0, sig * J0 * J1, sig * J1 * J1)):
+            out[:, j] = x[0] + x[1] + x[2]  # leg by leg, as the single env sums
+        return out
 
     # ------------------------------------------------------------------ batching
-    def _stack(self, obs: list):
+    def _flat(self, obs) -> np.ndarray:
+        """A world's observation as the flat float32 row (a dict observation concatenated in term order)."""
         if self._dict_obs:
-            return {k: np.stack([o[k] for o in obs]) for k in self.single_observation_space.spaces}
-        return np.stack(obs)
+            return np.concatenate([obs[name] for name in self._obs_names])
+        return obs
+
+    def _unflat(self, flat: np.ndarray):
+        """Flat rows (N, obs_size) or one row as the batch's (or a world's) observation."""
+        if self._dict_obs:
+            return {name: flat[..., sl].copy() for name, sl in self._obs_slices.items()}
+        return flat
+
+    def _vector_info(self, cols_, rows: dict, extras: dict) -> dict:
+        """Gymnasium's vector info: each key an array over worlds, with a bool mask ``_key`` of the worlds that
+        have it."""
+        idx, cols = cols_
+        n = self.num_envs
+        if not cols and not extras and len(rows) == n:  # world by world: stack the worlds' dicts
+            return self._merge_infos([rows[i] for i in range(n)])
+        out: dict[str, Any] = {}
+        if cols:
+            mask = np.zeros(n, dtype=bool)
+            mask[idx] = True
+            if rows:
+                mask[list(rows)] = False
+            for key, v in (cols.items() if mask.any() else ()):
+                full = np.zeros((n,) + v.shape[1:], dtype=v.dtype)
+                full[idx] = v
+                if rows:
+                    full[list(rows)] = 0  # as Gymnasium's vector info leaves the worlds without the key
+                out[key] = full
+                out[f"_{key}"] = mask.copy()
+        for i in sorted(rows):
+            out = self._add_info(out, rows[i], i)
+        for i in sorted(extras):
+            out = self._add_info(out, extras[i], i)
+        return out
 
     def _merge_infos(self, infos: list[dict], mask: np.ndarray | None = None) -> dict:
         """Gymnasium's vector info: each key an array over worlds, with a bool mask ``_key`` of the worlds that
@@ -289,6 +685,21 @@ class VSWristVectorEnv(VectorEnv):
             if rest:
                 out = self._add_info(out, rest, i)
         return out
+
+    def _world_infos(self, cols_, rows: dict, extras: dict) -> list[dict]:
+        """The infos as one dict per world, as the single env returns them (for SB3's adapter)."""
+        idx, cols = cols_
+        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        if cols:
+            keys = list(cols)
+            values = [v.tolist() if v.ndim == 1 else list(v) for v in cols.values()]
+            for i, vals in zip(idx, zip(*values)):
+                infos[i] = dict(zip(keys, vals))
+        for i, extra in extras.items():
+            infos[i].update(extra)
+        for i, info in rows.items():
+            infos[i] = info
+        return infos
 
     # ------------------------------------------------------------------ rendering, closing, pickling
     def render(self, env_index: int | None = None):

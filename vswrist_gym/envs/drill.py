@@ -93,7 +93,7 @@ class DrillEnv(VSWristEnv):
         return self._thrust if getattr(self, "_engaged", False) else 0.0
 
     def _tracking_error(self, err):
-        return err[:2]  # PS is the tool turning; the disturbance acts on RUD/FE
+        return err[..., :2]  # PS is the tool turning; the disturbance acts on RUD/FE
 
     def _success(self) -> bool:
         t = (np.arange(len(self._history["error"])) + 1) * self.ctrl_dt

@@ -238,16 +238,12 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         return self.timely() and self._strike[1] >= self.tp["success_speed_ratio"] * self._rigid and \
             self._strike[2] <= self.tp["success_radius"] and self._off_plane <= self.tp["success_plane_error"]
 
-    def _info(self, weighted: dict, final: bool, err=None) -> dict:
-        info = super()._info(weighted, final, err)
+    def _task_info(self) -> dict:
         # no strike yet: struck False and zeros (no NaN in info: equal episodes must give equal infos)
         s = getattr(self, "_strike", None)
-        info["struck"] = s is not None
-        info["impact_speed"] = 0.0 if s is None else s[1]
-        info["impact_time"] = 0.0 if s is None else s[0]
-        info["impact_offset"] = 0.0 if s is None else s[2]
-        info["rigid_speed"] = float(getattr(self, "_rigid", 0.0))
-        return info
+        return {"struck": s is not None, "impact_speed": 0.0 if s is None else s[1],
+                "impact_time": 0.0 if s is None else s[0], "impact_offset": 0.0 if s is None else s[2],
+                "rigid_speed": float(getattr(self, "_rigid", 0.0))}
 
     def __setstate__(self, state):
         super().__setstate__(state)

@@ -236,7 +236,7 @@ class InsertionEnv(VSWristEnv):
                 "jamming": -min(self._contact / self.cfg["scales"]["force"], FORCE_CAP)}
 
     def _tracking_error(self, err):
-        return err[1:]  # the RUD reference is driven past the hole bottom on purpose
+        return err[..., 1:]  # the RUD reference is driven past the hole bottom on purpose
 
     def seated(self) -> bool:
         """Whether the pin is in the hole now, its end between ``success_depth`` of the depth and the bottom."""

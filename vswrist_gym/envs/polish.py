@@ -154,7 +154,7 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
         return {"force_band": -out / self.cfg["scales"]["force"]}
 
     def _tracking_error(self, err):
-        return err[1:]  # RUD is pressed into the surface on purpose: track FE and PS
+        return err[..., 1:]  # RUD is pressed into the surface on purpose: track FE and PS
 
     def _success(self) -> bool:
         k = self._window(self.tp["settle_s"])

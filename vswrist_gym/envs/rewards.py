@@ -62,6 +62,9 @@ class RewardsMixin:
             time=self._t,
             is_success=bool(self._success()) if final else False,
         )
+        extra = self._task_info()
+        if extra:
+            info.update(extra)
         return info
 
     def elastic_energy(self) -> float:
