@@ -48,6 +48,41 @@ def _finite_vector(name: str, value, n: int) -> tuple[float, ...]:
     return tuple(float(x) for x in arr)
 
 
+def _coupler_terms(ay, az, r, cos, sin, sqrt):
+    """The coupler centre O_c = r m/|m| (m = x_b + x_c(u)) at u = (RUD, FE) = (ay, az), its derivatives dO_c/du
+    and the coupler axis' dx_c/du (each 2 columns of 3). Element-wise: ``math`` functions on floats (one
+    posture), NumPy's on (N,) arrays (a batch), the same operations either way."""
+    cy, sy, cz, sz = cos(ay), sin(ay), cos(az), sin(az)
+    mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
+    nm = sqrt(mx * mx + my * my + mz * mz)
+    nx, ny, nz = mx / nm, my / nm, mz / nm
+    px, py, pz = r * nx, r * ny, r * nz
+    ax_, ay_, az_ = -cz * sy, -sz * sy, -cy          # dx_c/d(RUD)
+    bx_, by_, bz_ = -sz * cy, cz * cy, 0.0           # dx_c/d(FE)
+    f = r / nm
+    proj = nx * ax_ + ny * ay_ + nz * az_
+    d0x, d0y, d0z = f * (ax_ - nx * proj), f * (ay_ - ny * proj), f * (az_ - nz * proj)
+    proj = nx * bx_ + ny * by_ + nz * bz_
+    d1x, d1y, d1z = f * (bx_ - nx * proj), f * (by_ - ny * proj), f * (bz_ - nz * proj)
+    return (px, py, pz), ((d0x, d0y, d0z), (d1x, d1y, d1z)), ((ax_, ay_, az_), (bx_, by_, bz_))
+
+
+def _leg_terms(P, dOc, ce, se, a, s2, sqrt, maximum):
+    """For a leg at angle eta (ce, se = cos, sin eta): the atan2 arguments (Y, X) of its q1 and its row of J_a
+    (dq1/dRUD, dq1/dFE), from O_c = P and dO_c/du (see the module docstring). Element-wise like
+    ``_coupler_terms``; with (3, 1) arrays ce, se and (N,) arrays it gives the three legs of N postures."""
+    px, py, pz = P
+    (d0x, d0y, d0z), (d1x, d1y, d1z) = dOc
+    y0, z0 = ce * py + se * pz, -se * py + ce * pz
+    b = sqrt(maximum(s2 - z0 * z0, 1e-300))
+    Y, X = a * px + b * y0, b * px - a * y0
+    R2 = X * X + Y * Y
+    gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
+    gz = (X * y0 - Y * px) * (-z0 / b) / R2
+    return (Y, X, gx * d0x + gy * (ce * d0y + se * d0z) + gz * (-se * d0y + ce * d0z),
+            gx * d1x + gy * (ce * d1y + se * d1z) + gz * (-se * d1y + ce * d1z))
+
+
 class AnalyticController:
     """The paper's posture + stiffness controller: posture reference (RUD, FE, PS) -> four motor references.
 
@@ -165,7 +200,8 @@ class AnalyticController:
         lam_c = np.minimum(np.maximum(np.asarray(lam, dtype=float), -hi), hi)
         t0, t1, t2 = lam_c * N0, lam_c * N1, lam_c * N2
         if self.gravity_compensation:
-            g0, g1, g2 = self._min_norm_torques_batch(Ja, self._gravity_from_derivatives_batch(dOc, dxc))
+            (a0, a1, a2), (b0, b1, b2) = Ja
+            g0, g1, g2 = _min_norm(a0, a1, a2, b0, b1, b2, self._gravity_from_derivatives(dOc, dxc))
             tmax = self._tau_max
             t0 = np.minimum(np.maximum(t0 + g0, -tmax), tmax)
             t1 = np.minimum(np.maximum(t1 + g1, -tmax), tmax)
@@ -178,36 +214,17 @@ class AnalyticController:
     def posture_kinematics_batch(self, ay: np.ndarray, az: np.ndarray, with_q1: bool = True):
         """``_posture_kinematics`` over arrays, the three legs stacked along a first axis: (q1 (N, 3) or None,
         J_a as two (3, N) arrays (columns RUD, FE; row k = leg k), dO_c/du and dx_c/du as 2 columns of 3 (N,)
-        arrays)."""
-        cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-        mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
-        nm = np.sqrt(mx * mx + my * my + mz * mz)
-        nx, ny, nz = mx / nm, my / nm, mz / nm
-        r = self._r
-        px, py, pz = r * nx, r * ny, r * nz
-        ax_, ay_, az_ = -cz * sy, -sz * sy, -cy
-        bx_, by_, bz_ = -sz * cy, cz * cy, 0.0
-        f = r / nm
-        proj = nx * ax_ + ny * ay_ + nz * az_
-        d0x, d0y, d0z = f * (ax_ - nx * proj), f * (ay_ - ny * proj), f * (az_ - nz * proj)
-        proj = nx * bx_ + ny * by_ + nz * bz_
-        d1x, d1y, d1z = f * (bx_ - nx * proj), f * (by_ - ny * proj), f * (bz_ - nz * proj)
-        a, s2 = self._a, self._s * self._s
+        arrays). The same operations in the same order; atan2 from ``math`` element by element (NumPy's differs
+        from it in the last bit), so a batch's world equals the single env."""
+        P, dOc, dxc = _coupler_terms(ay, az, self._r, np.cos, np.sin, np.sqrt)
         ce, se = self._legs_ce, self._legs_se  # (3, 1): leg k's cos/sin(eta_k), broadcast over the N postures
-        y0, z0 = ce * py + se * pz, -se * py + ce * pz
-        b = np.sqrt(np.maximum(s2 - z0 * z0, 1e-300))
-        Y, X = a * px + b * y0, b * px - a * y0
-        R2 = X * X + Y * Y
-        gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
-        gz = (X * y0 - Y * px) * (-z0 / b) / R2
+        Y, X, J0, J1 = _leg_terms(P, dOc, ce, se, self._a, self._s * self._s, np.sqrt, np.maximum)
         q1 = None
         if with_q1:
             atan2 = math.atan2
             q1 = np.array([atan2(yy, xx) for yy, xx in zip(Y.T.ravel().tolist(), X.T.ravel().tolist())])
             q1 = q1.reshape(-1, 3)
-        J0 = gx * d0x + gy * (ce * d0y + se * d0z) + gz * (-se * d0y + ce * d0z)
-        J1 = gx * d1x + gy * (ce * d1y + se * d1z) + gz * (-se * d1y + ce * d1z)
-        return q1, (J0, J1), ((d0x, d0y, d0z), (d1x, d1y, d1z)), ((ax_, ay_, az_), (bx_, by_, bz_))
+        return q1, (J0, J1), dOc, dxc
 
     @staticmethod
     def basis_batch(Ja):
@@ -217,25 +234,6 @@ class AnalyticController:
         inv = 1.0 / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         inv = np.where(n0 + n1 + n2 > 0, -inv, inv)
         return n0 * inv, n1 * inv, n2 * inv
-
-    def _gravity_from_derivatives_batch(self, dOc, dxc):
-        gx, gy, gz = self._gravity
-        m_hand, m_coupler = self._masses
-        mo, ml = m_hand + m_coupler, m_hand * self._hand_offset
-        return tuple(-(gx * (mo * ox + ml * xx) + gy * (mo * oy + ml * xy) + gz * (mo * oz + ml * xz))
-                     for (ox, oy, oz), (xx, xy, xz) in zip(dOc, dxc))
-
-    @staticmethod
-    def _min_norm_torques_batch(Ja, w):
-        (a0, a1, a2), (b0, b1, b2) = Ja
-        p = a0 * a0 + a1 * a1 + a2 * a2
-        q = a0 * b0 + a1 * b1 + a2 * b2
-        r = b0 * b0 + b1 * b1 + b2 * b2
-        w0, w1 = w
-        inv_det = 1.0 / (p * r - q * q)
-        x0 = (r * w0 - q * w1) * inv_det
-        x1 = (p * w1 - q * w0) * inv_det
-        return a0 * x0 + b0 * x1, a1 * x0 + b1 * x1, a2 * x0 + b2 * x1
 
     @property
     def posture_reference(self) -> np.ndarray:
@@ -250,35 +248,18 @@ class AnalyticController:
 
     def _posture_kinematics(self, ay: float, az: float):
         """(q1, J_a, dO_c/du, dx_c/du): ``_q1_ja`` plus the coupler-centre and coupler-axis derivatives (each
-        2 columns of 3), which the gravity compensation reuses rather than recomputing. Loops unrolled (the
-        hot path of every env step); the arithmetic is the same, term by term, as the looped original."""
-        cy, sy, cz, sz = math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
-        mx, my, mz = 1.0 + cz * cy, sz * cy, -sy
-        nm = math.sqrt(mx * mx + my * my + mz * mz)
-        nx, ny, nz = mx / nm, my / nm, mz / nm
-        r = self._r
-        px, py, pz = r * nx, r * ny, r * nz
-        ax_, ay_, az_ = -cz * sy, -sz * sy, -cy          # dx_c/d(RUD)
-        bx_, by_, bz_ = -sz * cy, cz * cy, 0.0           # dx_c/d(FE)
-        f = r / nm
-        proj = nx * ax_ + ny * ay_ + nz * az_
-        d0x, d0y, d0z = f * (ax_ - nx * proj), f * (ay_ - ny * proj), f * (az_ - nz * proj)
-        proj = nx * bx_ + ny * by_ + nz * bz_
-        d1x, d1y, d1z = f * (bx_ - nx * proj), f * (by_ - ny * proj), f * (bz_ - nz * proj)
+        2 columns of 3), which the gravity compensation reuses rather than recomputing. The hot path of every
+        env step: ``math`` on floats, leg by leg; ``posture_kinematics_batch`` runs the same two functions
+        (``_coupler_terms``, ``_leg_terms``) on arrays."""
+        P, dOc, dxc = _coupler_terms(ay, az, self._r, math.cos, math.sin, math.sqrt)
         a, s2 = self._a, self._s * self._s
         q1, Ja = [], []
         atan2, sqrt = math.atan2, math.sqrt
         for ce, se in self._legs:
-            y0, z0 = ce * py + se * pz, -se * py + ce * pz
-            b = sqrt(max(s2 - z0 * z0, 1e-300))
-            Y, X = a * px + b * y0, b * px - a * y0
-            R2 = X * X + Y * Y
-            gx, gy = (X * a - Y * b) / R2, (X * b + Y * a) / R2
-            gz = (X * y0 - Y * px) * (-z0 / b) / R2
+            Y, X, J0, J1 = _leg_terms(P, dOc, ce, se, a, s2, sqrt, max)
             q1.append(atan2(Y, X))
-            Ja.append([gx * d0x + gy * (ce * d0y + se * d0z) + gz * (-se * d0y + ce * d0z),
-                       gx * d1x + gy * (ce * d1y + se * d1z) + gz * (-se * d1y + ce * d1z)])
-        return q1, Ja, ((d0x, d0y, d0z), (d1x, d1y, d1z)), ((ax_, ay_, az_), (bx_, by_, bz_))
+            Ja.append([J0, J1])
+        return q1, Ja, dOc, dxc
 
     @staticmethod
     def _basis(Ja) -> tuple[float, float, float]:
@@ -437,7 +418,7 @@ class AnalyticController:
         return self._gravity_from_derivatives(dOc, dxc)
 
     def _gravity_from_derivatives(self, dOc, dxc) -> tuple[float, float]:
-        """dV_g/du from dO_c/du and dx_c/du (columns j = RUD, FE), scalar arithmetic.
+        """dV_g/du from dO_c/du and dx_c/du (columns j = RUD, FE), element-wise: floats, or (N,) arrays for a batch.
 
         V_g = -sum m_i g . p_i with p_hand = O_c + L x_c, p_coupler = O_c, so
         dV_g/du_j = -g . ((m_hand + m_coupler) dO_c/du_j + m_hand L dx_c/du_j)."""
@@ -472,16 +453,23 @@ class AnalyticController:
 
     @staticmethod
     def _min_norm_torques(Ja, w) -> tuple[float, float, float]:
-        """tau = J_a (J_a^T J_a)^-1 w (3,), the minimum-norm solution of J_a^T tau = w; 2x2 solve by Cramer."""
+        """tau = J_a (J_a^T J_a)^-1 w (3,), the minimum-norm solution of J_a^T tau = w; J_a as 3 rows (leg k:
+        dq1_k/dRUD, dq1_k/dFE)."""
         (a0, b0), (a1, b1), (a2, b2) = Ja
-        p = a0 * a0 + a1 * a1 + a2 * a2
-        q = a0 * b0 + a1 * b1 + a2 * b2
-        r = b0 * b0 + b1 * b1 + b2 * b2
-        w0, w1 = w
-        inv_det = 1.0 / (p * r - q * q)
-        x0 = (r * w0 - q * w1) * inv_det
-        x1 = (p * w1 - q * w0) * inv_det
-        return a0 * x0 + b0 * x1, a1 * x0 + b1 * x1, a2 * x0 + b2 * x1
+        return _min_norm(a0, a1, a2, b0, b1, b2, w)
+
+
+def _min_norm(a0, a1, a2, b0, b1, b2, w):
+    """J_a (J_a^T J_a)^-1 w with J_a's columns (a0, a1, a2) and (b0, b1, b2): a 2x2 solve by Cramer, element-wise,
+    so the same arithmetic serves one posture (floats) and a batch ((N,) arrays)."""
+    p = a0 * a0 + a1 * a1 + a2 * a2
+    q = a0 * b0 + a1 * b1 + a2 * b2
+    r = b0 * b0 + b1 * b1 + b2 * b2
+    w0, w1 = w
+    inv_det = 1.0 / (p * r - q * q)
+    x0 = (r * w0 - q * w1) * inv_det
+    x1 = (p * w1 - q * w0) * inv_det
+    return a0 * x0 + b0 * x1, a1 * x0 + b1 * x1, a2 * x0 + b2 * x1
 
 
 def benchmark(params: WristParams | str | None = None, steps: int = 20000) -> dict[str, float]:

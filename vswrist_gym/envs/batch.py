@@ -60,8 +60,8 @@ STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_rewa
 
 # observation terms the batch computes over arrays from what it measured; the others are read world by world
 # (from each world's simulator, or a task's own term)
-ARRAY_TERMS = ("posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action", "target",
-               "contact_force", "phase")
+ARRAY_TERMS = ("posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam",
+               "prev_action", "target", "contact_force", "phase")
 
 
 def _row_sum_sq(x: np.ndarray) -> np.ndarray:
