@@ -24,6 +24,7 @@ Conventions:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,7 +32,17 @@ from .kinematics import WristKinematics
 from .params import WristParams, load_params
 
 
-def _spring(params: WristParams | str | None):
+class SpringLaw(NamedTuple):
+    """The law's two constants, K (N m) and delta0 (rad): floats, or arrays that broadcast against the
+    deflections (a batch of worlds whose randomisation gave each its own springs: (N, 1) against (N, 3))."""
+
+    K: float | np.ndarray
+    delta0: float | np.ndarray
+
+
+def _spring(params: WristParams | SpringLaw | str | None):
+    if isinstance(params, SpringLaw):
+        return params
     return load_params(params).spring
 
 

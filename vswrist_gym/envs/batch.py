@@ -47,6 +47,7 @@ from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..stiffness import SpringLaw, spring_energy, spring_stiffness, spring_torque
 from .actions import check_action
 from .base import VSWristEnv
 from .rewards import wrap_angle
@@ -409,7 +410,8 @@ class VSWristVectorEnv(VectorEnv):
             Q[k] = e.sim._qpos
         K = np.array([e.params.spring.K for e in worlds])[:, None]
         d0 = np.array([e.params.spring.delta0 for e in worlds])[:, None]
-        e3 = 2.0 * K * d0 * (np.cosh(D / d0) - 1.0)  # stiffness.spring_energy, per world's springs
+        law = SpringLaw(K, d0)  # each world's own springs
+        e3 = spring_energy(D, law)
         energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
         T = np.array([e._reference(e._t) for e in worlds])
         err = wrap_angle(P - T)
@@ -496,9 +498,9 @@ class VSWristVectorEnv(VectorEnv):
             elif name == "deflections":
                 raw[:, a:b] = D
             elif name == "spring_torques":
-                raw[:, a:b] = -2.0 * K * np.sinh(D / d0)
+                raw[:, a:b] = spring_torque(D, law)
             elif name == "stiffness":
-                raw[:, a:b] = self._coupler_stiffness(first, P, D, K, d0)
+                raw[:, a:b] = self._coupler_stiffness(first, P, D, law)
             elif name == "lam":
                 raw[:, a] = lam
             elif name == "prev_action":
@@ -597,11 +599,11 @@ class VSWristVectorEnv(VectorEnv):
         return out
 
     @staticmethod
-    def _coupler_stiffness(first, P, D, K, d0) -> np.ndarray:
+    def _coupler_stiffness(first, P, D, law: SpringLaw) -> np.ndarray:
         """The ``stiffness`` term (``ObservationsMixin._obs_stiffness``) of every world: J_a^T diag(sigma_s) J_a
         at the measured postures, summed leg by leg in the single env's order."""
         _, Ja, _, _ = first.ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
-        sig = (2.0 * K / d0 * np.cosh(D / d0)).T  # stiffness.spring_stiffness, per world's springs; (3, N)
+        sig = spring_stiffness(D, law).T  # (3, N)
         J0, J1 = Ja
         out = np.empty((P.shape[0], 3))
         for j, x in enumerate((sig * J0 * J0, sig * J0 * J1, sig * J1 * J1)):
