@@ -1,5 +1,5 @@
 """Did frame stacking help? The tuned PPO entry against the same entry with the other `frame_stack`, per task, on
-the same evaluation episodes (results/README.md section 8).
+the same evaluation episodes (results/README.md section 9).
 
     python results/frame_stack_effect.py vswrist_gym/configs/sweeps/tuned_stiffness.yaml \
         vswrist_gym/configs/sweeps/tuned_stiffness_fs1.yaml

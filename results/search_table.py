@@ -1,4 +1,4 @@
-"""The PPO stiffness-track search in one table per task (results/README.md section 8), from the records that
+"""The PPO stiffness-track search in one table per task (results/README.md section 9), from the records that
 `vswrist sweep vswrist_gym/configs/sweeps/search_ppo_stiffness.yaml` wrote (copied to
 results/tuned_stiffness/search/<Task>.json):
 
