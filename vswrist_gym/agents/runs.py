@@ -875,7 +875,8 @@ class TrainedAgent:
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
         """The action for `obs` (one observation or a batch, one row per environment). With frame stacking the
         agent keeps each environment's last frames as VecFrameStack does in training: a row whose
-        `episode_start` is true starts from zeros with its observation newest (None: every row starts)."""
+        `episode_start` is true starts from zeros with its observation newest. Without `episode_start` (a caller
+        that runs one episode, as `vswrist video` does) every row starts at the first query and continues after."""
         if self.vecnorm is not None and self.vecnorm.norm_obs:
             obs = self.vecnorm.normalize_obs(np.asarray(obs, dtype=np.float32))
         if self.frame_stack <= 1:
@@ -883,7 +884,7 @@ class TrainedAgent:
         obs = np.asarray(obs, dtype=np.float32)
         single = obs.shape == self.observation_shape
         rows = obs.reshape(1, *obs.shape) if single else obs
-        starts = np.ones(len(rows), dtype=bool) if episode_start is None else \
+        starts = np.zeros(len(rows), dtype=bool) if episode_start is None else \
             np.asarray(episode_start, dtype=bool).reshape(len(rows))
         width = rows.shape[-1]
         if self._stack is None or self._stack.shape[0] != len(rows):
