@@ -150,9 +150,38 @@ def test_zoo_folder_reading_without_training(tmp_path):
     assert cfg.env_kwargs == {"action_mode": "residual"} and cfg.normalize == {"norm_obs": True, "norm_reward": False}
     write(entry, env_kwargs={"action_mode": "motor"})  # --env-kwargs on rl_zoo3's command line win, as in enjoy
     assert read_zoo_run(folder)[0].env_kwargs == {"action_mode": "motor"}
-    write({**entry, "frame_stack": 4})
-    with pytest.raises(RunDirError, match="frame_stack"):
+    write({**entry, "frame_stack": 4})  # replayed with the stacking rl_zoo3 trained with
+    assert read_zoo_run(folder)[0].frame_stack == 4
+    write({**entry, "env_wrapper": "gymnasium.wrappers.TimeAwareObservation"})
+    with pytest.raises(RunDirError, match="env_wrapper"):
         read_zoo_run(folder)
     (params / "config.yml").write_text("!!python/object/apply:os.system ['echo pwned']\n")
     with pytest.raises(RunDirError, match="not readable"):
         read_zoo_run(folder)
+
+
+def test_frame_stacked_zoo_run_replays_as_in_enjoy(tmp_path):
+    """RL Zoo's `frame_stack` key: rl_zoo3 trains with VecFrameStack (after VecNormalize) and enjoy replays with
+    it; `vswrist evaluate` on the same reset seed, which stacks in the agent, gives enjoy's return."""
+    import yaml
+
+    entry = dict(hparams.load_file(hparams.default_config_path("ppo"))[TASK])
+    entry.update(frame_stack=3, n_envs=2, n_steps=64, batch_size=64, n_epochs=1)
+    conf = tmp_path / "fs.yaml"
+    conf.write_text(yaml.safe_dump({TASK: entry}))
+    res = run("-m", "rl_zoo3.train", "--algo", "ppo", "--env", TASK, "--gym-packages", "vswrist_gym", "--conf-file",
+              conf, "--vec-env", "dummy", "--eval-freq", "-1", "-n", "256", "--seed", "0", "--device", "cpu",
+              "-f", "logs", "--num-threads", "1", cwd=tmp_path)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    folder = tmp_path / "logs" / "ppo" / f"{FOLDER}_1"
+    res = run("-m", "rl_zoo3.enjoy", "--algo", "ppo", "--env", TASK, "--gym-packages", "vswrist_gym",
+              "-f", folder.parent.parent, "--exp-id", "1", "-n", "150", "--no-render", "--deterministic",
+              "--device", "cpu", "--seed", EVAL_SEED, cwd=tmp_path)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    enjoy = [float(x) for x in re.findall(r"Episode Reward: (-?[\d.]+)", res.stdout)]
+    assert enjoy, res.stdout[-2000:]
+    res = run("-m", "vswrist_gym.cli", "evaluate", "--task", TASK, "--agent", folder, "--seeds", "0",
+              "--episodes", "1", "--out", tmp_path / "ev", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert doc["episodes"][0]["return"] == pytest.approx(enjoy[0], abs=0.006)  # enjoy prints two decimals

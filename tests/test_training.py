@@ -86,8 +86,10 @@ def test_every_hyperparameter_key_is_used(algo, env_id):
         assert cfg.policy_kwargs == _rl_zoo_eval(raw["policy_kwargs"])
     venv = DummyVecEnv([runs.EnvFactory(env_id, cfg.env_kwargs)])
     try:
-        model = hparams.algo_class(algo)(cfg.policy, runs.wrap_normalize(venv, cfg),
+        model = hparams.algo_class(algo)(cfg.policy, runs.wrap_frame_stack(runs.wrap_normalize(venv, cfg),
+                                                                          cfg.frame_stack),
                                          policy_kwargs=cfg.policy_kwargs or None, device="cpu", **cfg.algo_kwargs)
+        assert model.observation_space.shape[-1] == cfg.frame_stack * venv.observation_space.shape[-1]
         for key in algo_keys:
             assert _same(getattr(model, key), raw[key]), f"{algo} {env_id}: {key}"
         # run keys: values reach the resolved config unchanged (they are consumed by train(), tested end to end below)
@@ -132,8 +134,8 @@ def test_unknown_and_bad_keys_are_named():
         hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 100, "n_envs": 0})
     with pytest.raises(hparams.ConfigError, match="activation_fn"):
         hparams.resolve_entry("sac", "Pendulum-v1", {"n_timesteps": 100, "policy_kwargs": {"activation_fn": "nn.Tanh"}})
-    with pytest.raises(hparams.ConfigError, match="frame_stack"):
-        hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 100, "frame_stack": 4})
+    with pytest.raises(hparams.ConfigError, match="env_wrapper"):
+        hparams.resolve_entry("ppo", "Pendulum-v1", {"n_timesteps": 100, "env_wrapper": "gymnasium.wrappers.X"})
     with pytest.raises(hparams.ConfigError, match="algo"):
         hparams.resolve_entry("td3", "Pendulum-v1", {"n_timesteps": 100})
 

@@ -1,8 +1,8 @@
 """Hyperparameter files for PPO and SAC in RL Zoo's format: one YAML per algorithm, keyed by environment id.
 
 A shipped file loads unchanged in `python -m rl_zoo3.train --conf-file FILE` and in `vswrist train`. An entry holds
-only keys RL Zoo knows (n_timesteps, n_envs, policy, normalize, env_kwargs, policy_kwargs and the algorithm's
-constructor arguments); `policy_kwargs` is written as RL Zoo writes it, a string such as
+only keys RL Zoo knows (n_timesteps, n_envs, policy, normalize, env_kwargs, policy_kwargs, frame_stack and the
+algorithm's constructor arguments); `policy_kwargs` is written as RL Zoo writes it, a string such as
 `"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"`, which rl_zoo3 evaluates and this module parses with `ast`
 (literals, `dict(...)` and allow-listed `nn.X` / `th.optim.X` names only: nothing in a file is executed). The run
 settings RL Zoo takes as command-line flags (vec_env, eval_freq, n_eval_episodes, checkpoint_freq,
@@ -41,6 +41,8 @@ ZOO_RUN_KEYS = {
     "env_kwargs": "mapping passed to gymnasium.make",
     "policy_kwargs": "mapping passed to the policy, as RL Zoo writes it: a string \"dict(net_arch=[64, 64], "
                      "activation_fn=nn.Tanh)\"",
+    "frame_stack": "observations stacked (int > 0; 1 = none): SB3's VecFrameStack over the normalised "
+                   "observation, the newest last, as rl_zoo3 stacks",
 }
 # Run settings RL Zoo takes as command-line flags (in brackets): in the file's `vswrist:` section.
 SECTION_KEYS = {
@@ -53,7 +55,7 @@ SECTION_KEYS = {
 }
 RUN_KEYS = {**ZOO_RUN_KEYS, **SECTION_KEYS}
 # RL Zoo keys that `vswrist train` does not implement: named in the error instead of "unknown key".
-ZOO_UNSUPPORTED = {"frame_stack", "env_wrapper", "vec_env_wrapper", "callback", "monitor_kwargs", "noise_type",
+ZOO_UNSUPPORTED = {"env_wrapper", "vec_env_wrapper", "callback", "monitor_kwargs", "noise_type",
                    "noise_std", "replay_buffer_class", "replay_buffer_kwargs"}
 # Keys the training command sets itself; an entry may not set them.
 RESERVED_ALGO_KEYS = {"self", "policy", "env", "tensorboard_log", "seed", "verbose", "device", "_init_setup_model",
@@ -92,6 +94,7 @@ class RunConfig:
     keep_checkpoints: int
     policy_kwargs: dict
     algo_kwargs: dict
+    frame_stack: int = 1  # observations the policy sees at once (1: the current one only)
     source: str = ""
     raw: dict = field(default_factory=dict)
 
@@ -369,6 +372,7 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
     checkpoint_freq = _positive_int(entry, "checkpoint_freq", max(n_timesteps // 5, 1))
     keep_checkpoints = _positive_int(entry, "keep_checkpoints", 2)
     policy_kwargs = parse_policy_kwargs(entry.pop("policy_kwargs", None))
+    frame_stack = _positive_int(entry, "frame_stack", 1)
 
     zoo_only = sorted(set(entry) & ZOO_UNSUPPORTED)
     if zoo_only:
@@ -386,4 +390,4 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
                      policy=policy, normalize=normalize, env_kwargs=env_kwargs, eval_freq=eval_freq,
                      n_eval_episodes=n_eval_episodes, checkpoint_freq=checkpoint_freq,
                      keep_checkpoints=keep_checkpoints, policy_kwargs=policy_kwargs, algo_kwargs=algo_kwargs,
-                     source=source, raw=raw)
+                     frame_stack=frame_stack, source=source, raw=raw)

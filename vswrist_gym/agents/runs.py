@@ -329,6 +329,16 @@ def make_vec_env(cfg: RunConfig, n_envs: int, seed: int, monitor_dir: Path | Non
     return venv
 
 
+def wrap_frame_stack(venv, n_stack: int):
+    """SB3's VecFrameStack over `venv` when `n_stack` > 1 (the entry's `frame_stack`): outside the normalisation,
+    as rl_zoo3 wraps it, so the statistics stay per observation and a run loads in either tool."""
+    if n_stack <= 1:
+        return venv
+    from stable_baselines3.common.vec_env import VecFrameStack
+
+    return VecFrameStack(venv, n_stack)
+
+
 def wrap_normalize(venv, cfg: RunConfig, training: bool = True):
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -580,13 +590,14 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     return complete[0] if complete else None
 
 
-def load_checkpoint(checkpoint: Path, algo: str, venv, normalize: bool):
-    """Model (with its normalisation wrapper around `venv` and its replay buffer) from one checkpoint folder.
-    Raises RunDirError naming the file when any part of it does not read back."""
+def load_checkpoint(checkpoint: Path, algo: str, venv, normalize: bool, frame_stack: int = 1):
+    """Model (with its normalisation and frame-stacking wrappers around `venv` and its replay buffer) from one
+    checkpoint folder. Raises RunDirError naming the file when any part of it does not read back."""
     env = venv
     if normalize:
         env = load_vecnormalize(checkpoint, venv)
         env.training = True
+    env = wrap_frame_stack(env, frame_stack)
     model = load_model(checkpoint / "model.zip", algo, env=env)
     if getattr(model, "replay_buffer", None) is not None:
         if (checkpoint / REPLAY_FILE).is_file():
@@ -600,7 +611,7 @@ def load_checkpoint(checkpoint: Path, algo: str, venv, normalize: bool):
     return model, env
 
 
-def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=print):
+def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=print, frame_stack: int = 1):
     """(checkpoint, model, env) from the newest checkpoint that reads back completely; older ones are tried when
     the newest is damaged (truncated file, missing statistics), and the fallback is reported in one line.
     (None, None, venv) when the run has no checkpoint; RunDirError when none is intact."""
@@ -613,7 +624,7 @@ def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=prin
     damaged = []
     for ck in found:
         try:
-            model, env = load_checkpoint(ck, algo, venv, normalize)
+            model, env = load_checkpoint(ck, algo, venv, normalize, frame_stack)
         except RunDirError as exc:
             damaged.append(f"{ck.name}: {exc}")
             continue
@@ -700,8 +711,8 @@ def read_zoo_run(folder: Path) -> tuple[RunConfig, int, Path]:
     if args.get("env_kwargs") is not None:
         hyper["env_kwargs"] = args["env_kwargs"]
     # keys that shape training but not the policy's inputs or outputs: the model file holds the network itself,
-    # so these need not be understood to replay it (env_wrapper, frame_stack and the like do change what the
-    # policy sees, and stay errors)
+    # so these need not be understood to replay it (env_wrapper and the like do change what the policy sees, and
+    # stay errors; frame_stack is replayed as rl_zoo3 trains it)
     for key in ("policy_kwargs", "callback", "monitor_kwargs", "noise_type", "noise_std", "replay_buffer_class",
                 "replay_buffer_kwargs"):
         hyper.pop(key, None)
@@ -802,6 +813,20 @@ class TrainedAgent:
             self.vecnorm.training = False
         if not isinstance(self.model.observation_space, spaces.Box):
             raise RunDirError(f"{self.run_dir}: unsupported observation space {self.model.observation_space}")
+        self.frame_stack = self.cfg.frame_stack
+        self._stack = None  # the stacked frames, one row per environment, built at the first query
+
+    @property
+    def observation_shape(self) -> tuple:
+        """The shape of one environment observation the policy was trained on (the model sees frame_stack of
+        them side by side, the newest last, as VecFrameStack stacks flat observations)."""
+        shape = tuple(self.model.observation_space.shape)
+        if self.frame_stack > 1:
+            if shape[-1] % self.frame_stack:
+                raise RunDirError(f"{self.run_dir}: model observations of shape {shape} do not split into "
+                                  f"frame_stack {self.frame_stack} frames")
+            shape = (*shape[:-1], shape[-1] // self.frame_stack)
+        return shape
 
     def _vswrist_files(self, checkpoint: str) -> tuple[Path, Path]:
         if checkpoint == "final":
@@ -831,9 +856,9 @@ class TrainedAgent:
     def check_env(self, env) -> None:
         """The environment must be the one the run was trained on: same spaces and, for a VS-Wrist task, the same
         resolved settings (action mode above all), so that a policy never drives an environment it does not know."""
-        if env.observation_space.shape != self.model.observation_space.shape:
+        if env.observation_space.shape != self.observation_shape:
             raise RunDirError(f"{self.run_dir} was trained on observations of shape "
-                              f"{self.model.observation_space.shape}, the environment gives "
+                              f"{self.observation_shape}, the environment gives "
                               f"{env.observation_space.shape}")
         if env.action_space != self.model.action_space:
             raise RunDirError(f"{self.run_dir} was trained with actions in {self.model.action_space}, the "
@@ -848,9 +873,32 @@ class TrainedAgent:
                               f" for observations of shape {env.observation_space.shape}")
 
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        """The action for `obs` (one observation or a batch, one row per environment). With frame stacking the
+        agent keeps each environment's last frames as VecFrameStack does in training: a row whose
+        `episode_start` is true starts from zeros with its observation newest. Without `episode_start` (a caller
+        that runs one episode, as `vswrist video` does) every row starts at the first query and continues after."""
         if self.vecnorm is not None and self.vecnorm.norm_obs:
             obs = self.vecnorm.normalize_obs(np.asarray(obs, dtype=np.float32))
-        return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+        if self.frame_stack <= 1:
+            return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+        obs = np.asarray(obs, dtype=np.float32)
+        single = obs.shape == self.observation_shape
+        rows = obs.reshape(1, *obs.shape) if single else obs
+        starts = np.zeros(len(rows), dtype=bool) if episode_start is None else \
+            np.asarray(episode_start, dtype=bool).reshape(len(rows))
+        width = rows.shape[-1]
+        if self._stack is None or self._stack.shape[0] != len(rows):
+            self._stack = np.zeros((len(rows), *rows.shape[1:-1], width * self.frame_stack), dtype=np.float32)
+            starts = np.ones(len(rows), dtype=bool)
+        # VecFrameStack's update of flat observations: every row shifts by one frame, a row whose episode starts
+        # is zeroed, and the new frames go last
+        self._stack = np.roll(self._stack, -width, axis=-1)
+        self._stack[starts] = 0.0
+        self._stack[..., -width:] = rows
+        stacked = self._stack.copy()
+        action, state = self.model.predict(stacked, state=state, episode_start=episode_start,
+                                           deterministic=deterministic)
+        return (action[0] if single else action), state
 
 
 def override(cfg: RunConfig, **changes) -> RunConfig:

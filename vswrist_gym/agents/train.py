@@ -25,7 +25,8 @@ from vswrist_gym.agents.runs import (VECNORM_FILE, RunDirError, atomic_write_byt
                                      check_new_out, check_seed, check_writable, created_root, latest_checkpoint,
                                      limit_threads, load_newest_intact, make_vec_env, model_bytes, override,
                                      process_alive, read_config, save_checkpoint, save_vecnormalize, steps_done,
-                                     this_process, update_run_json, versions, wrap_normalize, write_config)
+                                     this_process, update_run_json, versions, wrap_frame_stack, wrap_normalize,
+                                     write_config)
 
 
 class TrainingError(RuntimeError):
@@ -148,6 +149,7 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
 
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False,
                                 **{k: v for k, v in cfg.normalize.items() if k not in ("norm_reward",)})
+    eval_env = wrap_frame_stack(eval_env, cfg.frame_stack)
     every = min(cfg.eval_freq, max(cfg.n_timesteps // 2, 1))  # a short run still gets a learning curve
     evaluator = HistoryEvalCallback(eval_env, n_eval_episodes=cfg.n_eval_episodes,
                                     eval_freq=max(every // n_envs, 1),
@@ -257,7 +259,8 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             write_config(run_dir, cfg, seed)  # first: a folder this command writes into is recognisably a run
         venv = make_vec_env(cfg, cfg.n_envs, seed, monitor_dir=run_dir / "monitor", prefix=prefix)
         if resume:
-            checkpoint, model, venv = load_newest_intact(run_dir, algo, venv, cfg.normalize is not None, log=log)
+            checkpoint, model, venv = load_newest_intact(run_dir, algo, venv, cfg.normalize is not None, log=log,
+                                                          frame_stack=cfg.frame_stack)
         if model is not None:
             model.tensorboard_log = str(run_dir / "tb")
             where = checkpoint.name if checkpoint != run_dir else "its final model.zip"
@@ -265,7 +268,7 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
         else:
             if resume:
                 log(f"no checkpoint in {run_dir}: starting from scratch")
-            venv = wrap_normalize(venv, cfg)
+            venv = wrap_frame_stack(wrap_normalize(venv, cfg), cfg.frame_stack)
             from vswrist_gym.agents.hparams import algo_class
 
             model = algo_class(algo)(cfg.policy, venv, seed=seed, tensorboard_log=str(run_dir / "tb"),
