@@ -5,8 +5,9 @@ the same evaluation episodes (results/README.md section 9).
         vswrist_gym/configs/sweeps/tuned_stiffness_fs1.yaml
 
 Both are `vswrist sweep` grid files with the same seeds and episodes whose PPO entries differ only in
-`frame_stack`; their outputs (`out:`) are compared task by task. Episodes are paired by (training seed, reset seed): per seed the
-mean difference, then the mean and the Student-t 95 % interval over seeds (`tools.contribution`'s pairing).
+`frame_stack`; their outputs (`out:`) are compared task by task. Episodes are paired by (training seed, reset
+seed): per seed the mean difference, then the mean and the Student-t 95 % interval over seeds
+(`tools.contribution`'s pairing).
 """
 
 from __future__ import annotations

@@ -18,7 +18,8 @@ STIFFNESS_TRACK = {"action_mode": "residual", "residual": {"posture_scale": 0.0}
 
 
 def _entry(**extra) -> dict:
-    return {"n_timesteps": 256, "n_envs": 2, "policy": "MlpPolicy", "normalize": {"norm_obs": True, "norm_reward": True},
+    return {"n_timesteps": 256, "n_envs": 2, "policy": "MlpPolicy",
+            "normalize": {"norm_obs": True, "norm_reward": True},
             "n_steps": 64, "batch_size": 64, "n_epochs": 1, "eval_freq": 128, "n_eval_episodes": 2,
             "checkpoint_freq": 128, **extra}
 

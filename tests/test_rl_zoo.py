@@ -61,16 +61,23 @@ def test_sac_file_loads_in_rl_zoo(tmp_path):
     assert (tmp_path / "logs" / "sac" / f"{FOLDER}_1" / f"{FOLDER}.zip").is_file()
 
 
+def enjoy_returns(logs, cwd) -> list[float]:
+    """The episode returns ``rl_zoo3.enjoy`` prints for experiment 1 of PPO on TASK under ``logs``
+    (deterministic, the evaluation reset seed; RL Zoo's own loading of the model and its statistics)."""
+    res = run("-m", "rl_zoo3.enjoy", "--algo", "ppo", "--env", TASK, "--gym-packages", "vswrist_gym",
+              "-f", logs, "--exp-id", "1", "-n", "150", "--no-render", "--deterministic",
+              "--device", "cpu", "--seed", EVAL_SEED, cwd=cwd)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    enjoy = [float(x) for x in re.findall(r"Episode Reward: (-?[\d.]+)", res.stdout)]
+    assert enjoy, res.stdout[-2000:]
+    return enjoy
+
+
 def test_zoo_model_replays_as_in_rl_zoo_enjoy(zoo_run, zoo_return, tmp_path, request):
     """rl_zoo3.enjoy (RL Zoo's own loading of the model, its env_kwargs and its vecnormalize.pkl), `vswrist
     evaluate` and `vswrist video` on the same reset seed give the same return; what cannot be replayed faithfully
     is refused in one line. (One test, so that the xdist workers train the run once.)"""
-    res = run("-m", "rl_zoo3.enjoy", "--algo", "ppo", "--env", TASK, "--gym-packages", "vswrist_gym",
-              "-f", zoo_run.parent.parent, "--exp-id", "1", "-n", "150", "--no-render", "--deterministic",
-              "--device", "cpu", "--seed", EVAL_SEED, cwd=tmp_path)
-    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
-    enjoy = [float(x) for x in re.findall(r"Episode Reward: (-?[\d.]+)", res.stdout)]
-    assert enjoy, res.stdout[-2000:]
+    enjoy = enjoy_returns(zoo_run.parent.parent, tmp_path)
     assert zoo_return == pytest.approx(enjoy[0], abs=0.006)  # enjoy prints two decimals
     # the same through the model file's path, which resolves to its experiment folder
     res = run("-m", "vswrist_gym.cli", "evaluate", "--task", TASK, "--agent", zoo_run / f"{FOLDER}.zip",
@@ -174,12 +181,7 @@ def test_frame_stacked_zoo_run_replays_as_in_enjoy(tmp_path):
               "-f", "logs", "--num-threads", "1", cwd=tmp_path)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
     folder = tmp_path / "logs" / "ppo" / f"{FOLDER}_1"
-    res = run("-m", "rl_zoo3.enjoy", "--algo", "ppo", "--env", TASK, "--gym-packages", "vswrist_gym",
-              "-f", folder.parent.parent, "--exp-id", "1", "-n", "150", "--no-render", "--deterministic",
-              "--device", "cpu", "--seed", EVAL_SEED, cwd=tmp_path)
-    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
-    enjoy = [float(x) for x in re.findall(r"Episode Reward: (-?[\d.]+)", res.stdout)]
-    assert enjoy, res.stdout[-2000:]
+    enjoy = enjoy_returns(folder.parent.parent, tmp_path)
     res = run("-m", "vswrist_gym.cli", "evaluate", "--task", TASK, "--agent", folder, "--seeds", "0",
               "--episodes", "1", "--out", tmp_path / "ev", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
