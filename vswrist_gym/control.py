@@ -179,11 +179,12 @@ class AnalyticController:
         return theta
 
     # ------------------------------------------------------------ batched
-    # The same formulas as ``step``/``_posture_kinematics``/``_basis``/the gravity terms, over arrays of N
-    # postures: written operation for operation in the scalar code's order (NumPy's +, -, *, /, sqrt, sin and
-    # cos round as Python's math does; atan2 is taken from math element by element, since NumPy's arctan2 may
-    # differ in the last bit), so a batch of worlds and the single env command the same motor references to
-    # the bit (tests/test_control.py, tests/test_batch.py).
+    # ``step`` over arrays of N postures: the kinematics, gravity load and minimum-norm solve are the scalar
+    # path's own element-wise functions (``_coupler_terms``, ``_leg_terms``, ``_gravity_from_derivatives``,
+    # ``_min_norm``) on arrays, the rest written operation for operation in the scalar code's order (NumPy's
+    # +, -, *, /, sqrt, sin and cos round as Python's math does; atan2 is taken from math element by element,
+    # since NumPy's arctan2 may differ in the last bit), so a batch of worlds and the single env command the
+    # same motor references to the bit (tests/test_control.py, tests/test_batch.py).
     def step_batch(self, posture_ref: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Motor references of N controllers sharing these parameters, at once: ``posture_ref`` (N, 3) finite
         (RUD, FE, PS) references, ``lam`` (N,) internal torques (N m). Returns (theta (N, 4), the clipped lam
