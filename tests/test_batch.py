@@ -33,15 +33,23 @@ def _compare_info(single: dict, vec: dict, i: int, where: str) -> None:
             assert vec[k][i] == v, where
 
 
+@pytest.mark.parametrize("latency", [True, False], ids=["latency", "compiled"])
 @pytest.mark.parametrize("policy", ["random", "analytic"])
 @pytest.mark.parametrize("env_id", IDS)
-def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy):
+def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, latency):
     """World i of the batch reproduces gym.make(id) reset with seed s + i, step for step, through short episodes
-    (autoresets), a divergence in one world, and latency randomisation; physics on 2 threads."""
+    (autoresets) and a divergence in one world; physics on 2 threads. With latency randomisation the worlds
+    step through ``WristSim`` in Python; without it, through the compiled advance (``model.advance_lib``),
+    with each chunk's rewards and observations computed while later chunks' physics runs."""
     # episodes of 25 control steps (Hammer runs at 100 Hz), so that every world resets several times
-    cfg = {"episode_s": 0.25 if env_id == "VSWrist/Hammer-v0" else 0.5, "randomize": {"latency": {"enabled": True}}}
+    cfg = {"episode_s": 0.25 if env_id == "VSWrist/Hammer-v0" else 0.5,
+           "randomize": {"latency": {"enabled": latency}}}
     for seed in (2, 9):
         venv = make_batch(env_id, config=cfg, threads=2, array_step=True)  # the array step, though N is small
+        if not latency:
+            from vswrist_gym.model import advance_lib
+
+            assert (venv.unwrapped._advance_fn is not None) == (advance_lib.load() is not None)
         singles = [gym.make(env_id, config=cfg) for _ in range(N)]
         rng = np.random.default_rng(seed)
         obs, vinfo = venv.reset(seed=seed)
@@ -80,6 +88,8 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy):
             autoresets += int(needs_reset.sum())
             needs_reset = term | trunc
         assert autoresets >= 2 * N  # several episodes per world (and the diverged one)
+        if not latency:
+            assert not venv.unwrapped._blocked.any()
         venv.close()
 
 

@@ -49,6 +49,11 @@ class SimulationError(RuntimeError):
     """The physics diverged (MuJoCo reported bad accelerations and reset the state) or produced NaN."""
 
 
+# what ``WristSim.step`` (and a batch's compiled advance, ``model.advance_lib``) reports for a diverged step
+DIVERGED_MESSAGE = ("MuJoCo reported NaN or huge positions/velocities/accelerations and reset the state; the "
+                    "timestep or constraint settings are too coarse for this motion")
+
+
 class WristSim:
     """MuJoCo simulation of one VS-Wrist built from one parameter set.
 
@@ -214,8 +219,7 @@ class WristSim:
         self._stale = True
         w = self._warn_number
         if w[self._bad[0]] or w[self._bad[1]] or w[self._bad[2]]:
-            raise SimulationError("MuJoCo reported NaN or huge positions/velocities/accelerations and reset the "
-                                  "state; the timestep or constraint settings are too coarse for this motion")
+            raise SimulationError(DIVERGED_MESSAGE)
 
     # -------------------------------------------------------------- measures
     def _forward(self) -> None:

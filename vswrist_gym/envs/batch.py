@@ -42,15 +42,19 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Mapping, Sequence
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..model import advance_lib
+from ..sim import DIVERGED_MESSAGE
 from ..stiffness import SpringLaw, spring_energy, spring_stiffness, spring_torque
 from .actions import check_action
 from .base import VSWristEnv
 from .rewards import wrap_angle
+from .shared import PeriodMeanForce
 
 ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
 # the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
@@ -172,6 +176,20 @@ class VSWristVectorEnv(VectorEnv):
             and not overridden
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
+        # The compiled advance (``model.advance_lib``): one GIL-free call per chunk of worlds, for tasks whose
+        # physics is the base class's (or the contact meter's plugin path); else ``_advance`` world by world.
+        standard = cls._advance is VSWristEnv._advance and cls._advance_physics in (
+            VSWristEnv._advance_physics, PeriodMeanForce._advance_physics)
+        self._advance_fn = advance_lib.load() if self.backend == "c" and standard else None
+        self._meter_task = issubclass(cls, PeriodMeanForce)
+        self._sync = advance_lib.SYNC_KINEMATICS if first._light_sync else advance_lib.SYNC_FORWARD
+        self._nstep = int(round(first.ctrl_dt / first.sim.timestep))
+        self._ctrl_idx = np.asarray(first.sim._act_ids, dtype=np.int32)
+        self._handles = np.zeros((self.num_envs, advance_lib.HANDLE_COLUMNS), dtype=np.uint64)
+        self._handle_sims: list = [None] * self.num_envs
+        self._blocked = np.zeros(self.num_envs, dtype=bool)  # worlds the compiled advance cannot step
+        # CPU seconds inside the worlds' mj_step substeps (the compiled path), summed while not None (benchmarks)
+        self.physics_seconds: float | None = None
         self.set_threads(threads)
 
     # ------------------------------------------------------------------ threads
@@ -188,13 +206,18 @@ class VSWristVectorEnv(VectorEnv):
         self.threads = n
         bounds = np.linspace(0, self.num_envs, n + 1).round().astype(int)
         self._chunks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-        self._pool = ThreadPoolExecutor(max_workers=n - 1, thread_name_prefix="vswrist-physics") if n > 1 else None
+        # n workers: with the compiled advance the calling thread computes rewards and observations meanwhile
+        self._pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="vswrist-physics") if n > 1 else None
 
     def _close_pool(self) -> None:
         pool = getattr(self, "_pool", None)
         if pool is not None:
             pool.shutdown(wait=True)
         self._pool = None
+        cpool = getattr(self, "_cpool", None)
+        if cpool is not None:
+            cpool.close()
+        self._cpool = None
 
     def _advance_chunk(self, lo: int, hi: int, live: np.ndarray) -> None:
         envs = self.envs
@@ -211,6 +234,108 @@ class VSWristVectorEnv(VectorEnv):
         self._advance_chunk(*self._chunks[0], live)  # this thread takes the first chunk instead of waiting
         for f in futures:
             f.result()  # re-raises a world's exception here
+
+    # ------------------------------------------------------------------ the compiled advance
+    def _refresh_handles(self, worlds) -> None:
+        """Handle-table rows of ``worlds`` (after a reset: randomisation may rebuild a world's simulator, and
+        draws its latency); a world whose period the compiled call cannot reproduce is marked blocked."""
+        H = advance_lib
+        for i in worlds:
+            e = self.envs[i]
+            sim = e.sim
+            meter = getattr(e, "_meter", None) if self._meter_task else None
+            row = self._handles[i]
+            row[H.H_MODEL], row[H.H_DATA] = sim.model._address, sim.data._address
+            row[H.H_PEAK] = sim._closure_peak.ctypes.data
+            row[H.H_METER] = 0 if meter is None else meter.ctypes.data
+            row[H.H_METER_SIZE] = 0 if meter is None else meter.size
+            self._handle_sims[i] = sim
+            self._blocked[i] = (e._latency > 0.0 or (self._meter_task and meter is None)
+                                or int(round(e.ctrl_dt / sim.timestep)) != self._nstep
+                                or not np.array_equal(sim._act_ids, self._ctrl_idx))
+
+    def _native_ready(self, idx: list) -> bool:
+        """Whether the compiled advance steps the worlds ``idx`` this period (handles refreshed if stale)."""
+        if self._advance_fn is None:
+            return False
+        envs, sims = self.envs, self._handle_sims
+        stale = [i for i in idx if envs[i].sim is not sims[i]]
+        if stale:
+            self._refresh_handles(stale)
+        return not self._blocked[idx].any()
+
+    def _after_native(self, worlds: list, idx: list, status: np.ndarray) -> None:
+        """What ``_advance`` leaves on each world and its simulator, from the compiled call's status."""
+        light = self._sync == advance_lib.SYNC_KINEMATICS
+        meter = self._meter_task
+        for e, i, st in zip(worlds, idx, status.tolist()):
+            sim = e.sim
+            if meter:
+                e._period_ran = True
+            if st == advance_lib.OK:
+                sim._stale, sim._light, e._failure = False, light, None
+            elif st == advance_lib.DIVERGED:
+                sim._stale, e._failure = True, DIVERGED_MESSAGE
+            else:
+                raise mujoco.FatalError(f"env {i}: MuJoCo raised an error inside this world's physics step")
+
+    def _native_step(self, worlds: list, idx: list, A: np.ndarray | None, theta: np.ndarray | None,
+                     per_world: bool):
+        """The physics of the live worlds through the compiled advance. On one thread: one call. On ``threads``
+        threads: 2 x threads chunks of worlds for the library's own thread pool, and, for the array step,
+        ``_finish`` of each chunk on this thread as soon as its physics is done, while later chunks' physics
+        runs (the chunks' results joined in world order: each world's numbers depend on that world only).
+        Returns ``_finish``'s results for the array step, None world by world (the caller finishes each)."""
+        L = len(idx)
+        widx = np.asarray(idx, dtype=np.int32)
+        TH = self._motor_matrix(worlds, idx, theta)
+        status = np.zeros(L, dtype=np.int32)
+        seconds = None if self.physics_seconds is None else np.zeros(L)
+        lib = self._advance_fn
+        k = 1 if self.threads == 1 else min(L, 2 * self.threads)
+        bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
+        chunks = [(a, b) for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist())]
+        pool = None
+        if k == 1:
+            advance_lib.advance(lib, self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status,
+                                seconds)
+        else:
+            pool = self._cpool
+            if pool is None or pool.pid != os.getpid():  # made here: threads do not survive a fork
+                pool = self._cpool = advance_lib.Pool(lib, self.threads)
+            pool.submit(self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status, seconds, bounds)
+        parts = []
+        try:
+            for c, (a, b) in enumerate(chunks):
+                if pool is not None:
+                    pool.wait(c)
+                self._after_native(worlds[a:b], idx[a:b], status[a:b])
+                if not per_world:
+                    parts.append(self._finish(worlds[a:b], A[a:b]))
+        finally:
+            if pool is not None:
+                pool.wait()  # no thread touches a world after we return
+        if seconds is not None:
+            self.physics_seconds += float(seconds.sum())
+        if per_world:
+            return None
+        if len(parts) == 1:
+            return parts[0]
+        cat = np.concatenate
+        failures = {a + j: msg for (a, _), p in zip(chunks, parts) for j, msg in p[5].items()}
+        return (cat([p[0] for p in parts]), cat([p[1] for p in parts]), cat([p[2] for p in parts]),
+                cat([p[3] for p in parts]), {key: cat([p[4][key] for p in parts]) for key in parts[0][4]}, failures)
+
+    @staticmethod
+    def _motor_matrix(worlds: list, idx: list, theta: np.ndarray | None) -> np.ndarray:
+        """The live worlds' motor references (L, 4), float64 C-contiguous, checked finite as
+        ``WristSim.set_motor_references`` checks them."""
+        TH = np.ascontiguousarray(theta if theta is not None else [e._theta for e in worlds], dtype=np.float64)
+        if not np.isfinite(TH).all():
+            k = int(np.flatnonzero(~np.isfinite(TH).all(axis=1))[0])
+            raise ValueError(f"env {idx[k]}: motor references must be 4 finite angles in rad (A, B, C, PS), got "
+                             f"{TH[k]!r}")
+        return TH
 
     # ------------------------------------------------------------------ API
     def _seeds(self, seed) -> list:
@@ -242,6 +367,7 @@ class VSWristVectorEnv(VectorEnv):
             o, infos[i] = self.envs[i].reset(seed=seeds[i], options=options)
             obs[i] = self._flat(o)
             self._autoreset[i] = False
+        self._refresh_handles(np.flatnonzero(mask).tolist())
         self._started = True
         self._last_obs = obs
         return self._unflat(obs), self._merge_infos(infos, mask)
@@ -294,8 +420,12 @@ class VSWristVectorEnv(VectorEnv):
         if per_world:  # the single env's phases, world by world
             for e, i in zip(worlds, idx):
                 e._begin_step(acts[i])
-        A = self._begin(worlds, acts[idx]) if worlds and not per_world else None
-        self._physics(live)
+        A, theta = self._begin(worlds, acts[idx]) if worlds and not per_world else (None, None)
+        finished = None
+        if worlds and self._native_ready(idx):
+            finished = self._native_step(worlds, idx, A, theta, per_world)
+        else:
+            self._physics(live)
         obs = np.empty((n, self._obs_size), dtype=np.float32)
         rew = np.zeros(n)
         term = np.zeros(n, dtype=bool)
@@ -308,13 +438,14 @@ class VSWristVectorEnv(VectorEnv):
                 o, rew[i], term[i], trunc[i], rows[i] = e._finish_step()
                 obs[i] = self._flat(o)
         elif worlds:
-            o, r, te, tr, cols, failures = self._finish(worlds, A)
+            o, r, te, tr, cols, failures = finished if finished is not None else self._finish(worlds, A)
             obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
             for k, msg in failures.items():
                 extras[idx[k]] = {"simulation_error": msg}
         for i in np.flatnonzero(resetting).tolist():
             o, rows[i] = envs[i].reset()
             obs[i] = self._flat(o)
+        self._refresh_handles(np.flatnonzero(resetting).tolist())
         same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
         if same_step:
             done = np.flatnonzero(term | trunc).tolist()
@@ -331,6 +462,7 @@ class VSWristVectorEnv(VectorEnv):
                     o, info = envs[i].reset()
                     obs[i] = self._flat(o)
                     rows[i] = dict(info, final_obs=final_obs, final_info=final_info)
+                self._refresh_handles(done)
             self._autoreset = np.zeros(n, dtype=bool)
         else:
             self._autoreset = term | trunc
@@ -338,9 +470,10 @@ class VSWristVectorEnv(VectorEnv):
         return obs, rew, term, trunc, ((idx, cols), rows, extras)
 
     # ------------------------------------------------------------------ the step's phases over arrays
-    def _begin(self, worlds: list, acts: np.ndarray) -> np.ndarray:
+    def _begin(self, worlds: list, acts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``, over
-        arrays where the mode runs the controller with a commanded lam); returns the clipped actions."""
+        arrays where the mode runs the controller with a commanded lam); returns the clipped actions and the
+        motor references (L, 4) where the controller computed them over arrays (else None)."""
         A = np.maximum(acts, -1.0)
         np.minimum(A, 1.0, out=A)
         first = worlds[0]
@@ -360,12 +493,13 @@ class VSWristVectorEnv(VectorEnv):
                 c._u, c._ps, c.lam = (ay, az), ps, lam_k
                 e._a, e._theta = a, th
         else:  # motor (no controller) and posture_compliance (LM dynamics per world)
+            theta = None
             for e, a in zip(worlds, A):
                 e._a, e._theta = a, e._motor_refs(a)
         if self._hook_before:
             for e in worlds:
                 e._before_physics(e._t)
-        return A
+        return A, theta
 
     def _finish(self, worlds: list, A: np.ndarray):
         """``VSWristEnv._finish_step`` of the live worlds: each world's simulator and task hooks are read
@@ -736,11 +870,16 @@ class VSWristVectorEnv(VectorEnv):
 
     def __getstate__(self):
         state = dict(self.__dict__)
-        state["_pool"] = None
+        state["_pool"] = state["_cpool"] = None
+        # the compiled function and the worlds' addresses belong to this process: rebuilt on loading
+        state["_advance_fn"] = state["_advance_fn"] is not None
+        state["_handle_sims"] = [None] * self.num_envs
         return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+        self._advance_fn = advance_lib.load() if self._advance_fn else None
+        self._refresh_handles(range(self.num_envs))
         self.set_threads(self.threads)
 
     def __repr__(self) -> str:

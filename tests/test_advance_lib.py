@@ -1,0 +1,71 @@
+"""The compiled advance (``model.advance_lib``): an error MuJoCo raises inside one world is reported for that
+world, on the calling thread and on the library's pool, where the bindings' ``mj_step`` raises FatalError;
+the process lives on and the other worlds step. (Its numbers against ``WristSim`` are ``test_batch.py``'s.)"""
+
+import mujoco
+import numpy as np
+import pytest
+
+from vswrist_gym.model import advance_lib
+
+LIB = advance_lib.load()
+pytestmark = pytest.mark.skipif(LIB is None, reason="no C++ compiler: the batch steps world by world")
+
+
+def _crowded(memory: int) -> str:
+    """20 overlapping free spheres: the first step's contacts need more arena than ``memory`` bytes. One
+    motor, the ctrl the call writes (its 4 references all go to ctrl[0])."""
+    bodies = "".join(f'<body pos="0 0 {0.05 * i}"><freejoint/><geom size="0.1"/></body>' for i in range(20))
+    motor = '<body pos="3 0 0"><joint name="h"/><geom size="0.05"/></body>'
+    return (f'<mujoco><size memory="{memory}"/><worldbody>{bodies}{motor}</worldbody>'
+            f'<actuator><motor joint="h"/></actuator></mujoco>')
+
+
+def _failing_model() -> mujoco.MjModel:
+    """A model that compiles but whose mj_step raises (a stack overflow): the smallest arena that compiles.
+    Searched rather than fixed, since the arena a model needs depends on the MuJoCo build."""
+    for memory in range(10_000, 40_000, 250):
+        try:
+            m = mujoco.MjModel.from_xml_string(_crowded(memory))
+        except ValueError:
+            continue
+        try:
+            mujoco.mj_step(m, mujoco.MjData(m), 5)
+        except mujoco.FatalError:
+            return m
+    pytest.skip("no arena size makes this MuJoCo build raise inside mj_step")
+
+
+def _table(model, datas, peaks) -> np.ndarray:
+    h = np.zeros((len(datas), advance_lib.HANDLE_COLUMNS), dtype=np.uint64)
+    for row, d, p in zip(h, datas, peaks):
+        row[advance_lib.H_MODEL], row[advance_lib.H_DATA], row[advance_lib.H_PEAK] = model._address, d._address, \
+            p.ctypes.data
+    return h
+
+
+def test_a_mujoco_error_is_reported_for_its_world_and_the_others_step():
+    bad = _failing_model()
+    good = mujoco.MjModel.from_xml_string(_crowded(1_000_000))
+    datas = [mujoco.MjData(bad), mujoco.MjData(good)]
+    peaks = [np.ones(1), np.ones(1)]
+    h = np.vstack([_table(bad, datas[:1], peaks[:1]), _table(good, datas[1:], peaks[1:])])
+    status = np.full(2, -1, dtype=np.int32)
+    theta, ctrl_idx = np.full((2, 4), 0.5), np.zeros(4, dtype=np.int32)
+    # on the calling thread
+    nbad = advance_lib.advance(LIB, h, np.array([0, 1], dtype=np.int32), theta, ctrl_idx, 5, 0, status)
+    assert nbad == 1 and status.tolist() == [advance_lib.MUJOCO_ERROR, advance_lib.OK]
+    assert datas[1].time == pytest.approx(5 * good.opt.timestep)  # the good world ran its 5 substeps
+    assert peaks[1][0] == 0.0  # the closure peak restarts with the period
+    assert datas[1].ctrl[0] == 0.5  # the motor references are written before the substeps
+    # on the pool: one world per chunk, so each runs on a pool thread
+    pool = advance_lib.Pool(LIB, 2)
+    try:
+        status[:] = -1
+        pool.submit(h, np.array([0, 1], dtype=np.int32), theta, ctrl_idx, 5, 0, status, None,
+                    np.array([0, 1, 2], dtype=np.int32))
+        pool.wait()
+    finally:
+        pool.close()
+    assert status.tolist() == [advance_lib.MUJOCO_ERROR, advance_lib.OK]
+    assert datas[1].time == pytest.approx(10 * good.opt.timestep)
