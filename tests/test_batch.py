@@ -341,16 +341,18 @@ def _same_vector_info(a: dict, b: dict, where: str) -> None:
     ("VSWrist/Hammer-v0", {"action_mode": "motor", "stiffness_map": "linear"}),
     ("VSWrist/Insertion-v0", {"action_mode": "posture_compliance"}),
 ])
-def test_array_step_equals_the_world_by_world_step(env_id, cfg):
+@pytest.mark.parametrize("threads", [1, 2])
+def test_array_step_equals_the_world_by_world_step(env_id, cfg, threads):
     """The array step against the single env's phases run world by world (what a batch below
     ARRAY_MIN_WORLDS does by default), in the modes and settings the equivalence test above leaves out:
     dict observations, residual mode with gravity compensation, per-world spring models, motor and compliance
-    modes, SAME_STEP autoresets and a divergence."""
+    modes, SAME_STEP autoresets and a divergence. On 2 threads the array step's worlds are finished chunk by
+    chunk while other chunks step, and the worlds a chunk ended begin their resets early."""
     from vswrist_gym.envs.batch import ARRAY_MIN_WORLDS
 
     cfg = dict(cfg, episode_s=0.2)
-    kw = dict(config=cfg, threads=1, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
-    fast, slow = make_batch(env_id, array_step=True, **kw), make_batch(env_id, **kw)
+    kw = dict(config=cfg, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    fast, slow = make_batch(env_id, array_step=True, threads=threads, **kw), make_batch(env_id, threads=1, **kw)
     assert N < ARRAY_MIN_WORLDS and not slow.unwrapped.array_step
     rng = np.random.default_rng(0)
     for venv in (fast, slow):

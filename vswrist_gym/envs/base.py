@@ -263,6 +263,14 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self._reset_begin(seed)
+        self._settle()
+        return self._reset_finish()
+
+    # A reset in three phases, as a step, so that a batch settles the worlds it resets on its threads, beside
+    # the other worlds' physics: ``_reset_begin`` (the episode's draws, the initial state and references),
+    # ``_settle`` (the physics only: touches nothing but this world's MjModel/MjData) and ``_reset_finish``.
+    def _reset_begin(self, seed: int | None) -> None:
         super().reset(seed=seed)
         self._reset_state()
         self._randomize()
@@ -272,10 +280,15 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self.ctrl.reset(posture=(float(u0[0]), float(u0[1]), float(ps0)), lam=lam0)
         self.sim.apply_wrench(np.zeros(3), np.zeros(3))
         if self.cfg["settle_s"] > 0.0:
-            # let the wrist settle under gravity at the initial references (the simulator starts at rest at
-            # the exact posture, which is not an equilibrium once the hand's and the tool's weight act)
             self.sim.set_motor_references(self.ctrl.step(np.array([u0[0], u0[1], ps0]), lam=lam0))
+
+    def _settle(self) -> None:
+        """Let the wrist settle under gravity at the initial references (the simulator starts at rest at the
+        exact posture, which is not an equilibrium once the hand's and the tool's weight act)."""
+        if self.cfg["settle_s"] > 0.0:
             self.sim.step(self._settle_steps * self.model.opt.timestep)
+
+    def _reset_finish(self):
         self._after_reset()
         self._target = self._reference(0.0)
         self._measure()

@@ -57,6 +57,9 @@ from .rewards import wrap_angle
 from .shared import PeriodMeanForce
 
 ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
+# chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``): more chunks balance the
+# threads better, fewer keep the fixed cost of each ``_finish`` call low
+CHUNKS_PER_THREAD = 4
 # the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
 # by world); the hooks it calls per world, or over arrays (``_tracking_error``), stay the task's
 STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
@@ -235,6 +238,31 @@ class VSWristVectorEnv(VectorEnv):
         for f in futures:
             f.result()  # re-raises a world's exception here
 
+    # ------------------------------------------------------------------ resets, settled on the threads
+    def _start_resets(self, worlds: list, started: dict, seeds: list | None = None) -> None:
+        """Begin the resets of ``worlds`` (with ``seeds[i]``, or none: their generators go on) and settle
+        them: on the pool, beside whatever runs next, or at once without threads. ``started``: world ->
+        its settling's future (None: settled), for ``_end_reset``."""
+        pool = self._pool
+        for i in worlds:
+            e = self.envs[i]
+            e._reset_begin(None if seeds is None else seeds[i])
+            if pool is None:
+                e._settle()
+                started[i] = None
+            else:
+                started[i] = pool.submit(e._settle)
+
+    def _end_reset(self, i: int, started: dict):
+        """World i's reset, begun by ``_start_resets``: waits for its settling, then the single env's last
+        phase. Returns (observation, info)."""
+        f = started.pop(i)
+        if f is not None:
+            f.result()  # re-raises the settling's exception here
+        out = self.envs[i]._reset_finish()
+        self._refresh_handles([i])
+        return out
+
     # ------------------------------------------------------------------ the compiled advance
     def _refresh_handles(self, worlds) -> None:
         """Handle-table rows of ``worlds`` (after a reset: randomisation may rebuild a world's simulator, and
@@ -280,51 +308,78 @@ class VSWristVectorEnv(VectorEnv):
                 raise mujoco.FatalError(f"env {i}: MuJoCo raised an error inside this world's physics step")
 
     def _native_step(self, worlds: list, idx: list, A: np.ndarray | None, theta: np.ndarray | None,
-                     per_world: bool):
+                     per_world: bool, started: dict | None = None, meanwhile=None):
         """The physics of the live worlds through the compiled advance. On one thread: one call. On ``threads``
-        threads: 2 x threads chunks of worlds for the library's own thread pool, and, for the array step,
-        ``_finish`` of each chunk on this thread as soon as its physics is done, while later chunks' physics
-        runs (the chunks' results joined in world order: each world's numbers depend on that world only).
-        Returns ``_finish``'s results for the array step, None world by world (the caller finishes each)."""
+        threads: ``CHUNKS_PER_THREAD`` x threads chunks of worlds, stepped by the library's ``threads - 1``
+        threads and by this one, which, whenever chunks are done, first computes their rewards and
+        observations (the array step's ``_finish``, over all the chunks done by then) and otherwise steps the
+        next chunk itself: every core keeps busy and the Python runs beside the physics. Each world's numbers
+        depend on that world only, so the chunks' results are joined in world order.
+        Returns ``_finish``'s results for the array step, None world by world (the caller finishes each).
+        ``started``: with SAME_STEP autoresets, the resets begun (``_start_resets``) of the worlds a finished
+        chunk ended, whose settling then runs beside the physics still to come. ``meanwhile()``: Python to run
+        while the physics starts (the worlds that reset at this step)."""
         L = len(idx)
         widx = np.asarray(idx, dtype=np.int32)
         TH = self._motor_matrix(worlds, idx, theta)
         status = np.zeros(L, dtype=np.int32)
         seconds = None if self.physics_seconds is None else np.zeros(L)
         lib = self._advance_fn
-        k = 1 if self.threads == 1 else min(L, 2 * self.threads)
-        bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
-        chunks = [(a, b) for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist())]
-        pool = None
-        if k == 1:
+        parts: list = []  # (positions in idx, _finish's results for those worlds)
+
+        def finish(pos: list) -> None:
+            ws = [worlds[p] for p in pos]
+            self._after_native(ws, [idx[p] for p in pos], status[pos])
+            if per_world:
+                return
+            part = self._finish(ws, A[pos])
+            parts.append((pos, part))
+            if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
+                self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
+
+        if self.threads == 1 or L < 2:
+            if meanwhile is not None:
+                meanwhile()
             advance_lib.advance(lib, self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status,
                                 seconds)
+            finish(list(range(L)))
         else:
+            k = min(L, CHUNKS_PER_THREAD * self.threads)
+            bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
             pool = self._cpool
             if pool is None or pool.pid != os.getpid():  # made here: threads do not survive a fork
-                pool = self._cpool = advance_lib.Pool(lib, self.threads)
+                pool = self._cpool = advance_lib.Pool(lib, self.threads - 1)
             pool.submit(self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status, seconds, bounds)
-        parts = []
-        try:
-            for c, (a, b) in enumerate(chunks):
-                if pool is not None:
-                    pool.wait(c)
-                self._after_native(worlds[a:b], idx[a:b], status[a:b])
-                if not per_world:
-                    parts.append(self._finish(worlds[a:b], A[a:b]))
-        finally:
-            if pool is not None:
+            todo = np.ones(k, dtype=bool)
+            try:
+                if meanwhile is not None:
+                    meanwhile()
+                while todo.any():
+                    ready = pool.ready() & todo
+                    if ready.any():
+                        chunks = np.flatnonzero(ready).tolist()
+                        todo[chunks] = False
+                        finish([p for c in chunks for p in range(int(bounds[c]), int(bounds[c + 1]))])
+                    elif pool.run_one() < 0:  # every chunk is claimed: wait for the first unfinished one
+                        pool.wait(int(np.flatnonzero(todo)[0]))
+            finally:
                 pool.wait()  # no thread touches a world after we return
         if seconds is not None:
             self.physics_seconds += float(seconds.sum())
         if per_world:
             return None
         if len(parts) == 1:
-            return parts[0]
-        cat = np.concatenate
-        failures = {a + j: msg for (a, _), p in zip(chunks, parts) for j, msg in p[5].items()}
-        return (cat([p[0] for p in parts]), cat([p[1] for p in parts]), cat([p[2] for p in parts]),
-                cat([p[3] for p in parts]), {key: cat([p[4][key] for p in parts]) for key in parts[0][4]}, failures)
+            return parts[0][1]
+        order = np.concatenate([np.asarray(pos) for pos, _ in parts])
+        inv = np.empty(L, dtype=np.intp)
+        inv[order] = np.arange(L)
+
+        def join(j: int) -> np.ndarray:
+            return np.concatenate([p[j] for _, p in parts])[inv]
+
+        failures = {pos[j]: msg for pos, p in parts for j, msg in p[5].items()}
+        return (join(0), join(1), join(2), join(3),
+                {key: np.concatenate([p[4][key] for _, p in parts])[inv] for key in parts[0][1][4]}, failures)
 
     @staticmethod
     def _motor_matrix(worlds: list, idx: list, theta: np.ndarray | None) -> np.ndarray:
@@ -363,11 +418,13 @@ class VSWristVectorEnv(VectorEnv):
         super().reset(seed=seed if isinstance(seed, (int, np.integer)) else None)
         obs = self._last_obs.copy() if self._started else np.zeros((self.num_envs, self._obs_size), np.float32)
         infos = [{} for _ in range(self.num_envs)]
-        for i in np.flatnonzero(mask).tolist():
-            o, infos[i] = self.envs[i].reset(seed=seeds[i], options=options)
+        chosen = np.flatnonzero(mask).tolist()
+        started: dict = {}
+        self._start_resets(chosen, started, seeds)
+        for i in chosen:
+            o, infos[i] = self._end_reset(i, started)
             obs[i] = self._flat(o)
             self._autoreset[i] = False
-        self._refresh_handles(np.flatnonzero(mask).tolist())
         self._started = True
         self._last_obs = obs
         return self._unflat(obs), self._merge_infos(infos, mask)
@@ -416,14 +473,23 @@ class VSWristVectorEnv(VectorEnv):
         live = ~resetting
         idx = np.flatnonzero(live).tolist()
         worlds = [envs[i] for i in idx]
+        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
+        # resets begun, settling on the pool beside the physics: the worlds that ended on the last step (NEXT_STEP)
+        # or, with the compiled advance, those that end in a chunk already finished (SAME_STEP)
+        started: dict = {}
+        reset_now = np.flatnonzero(resetting).tolist()
+        native = bool(worlds) and self._native_ready(idx)
+        if not native:
+            self._start_resets(reset_now, started)
         per_world = not self.array_step
         if per_world:  # the single env's phases, world by world
             for e, i in zip(worlds, idx):
                 e._begin_step(acts[i])
         A, theta = self._begin(worlds, acts[idx]) if worlds and not per_world else (None, None)
         finished = None
-        if worlds and self._native_ready(idx):
-            finished = self._native_step(worlds, idx, A, theta, per_world)
+        if native:  # the resets begin while the physics runs
+            finished = self._native_step(worlds, idx, A, theta, per_world, started if same_step else None,
+                                         lambda: self._start_resets(reset_now, started))
         else:
             self._physics(live)
         obs = np.empty((n, self._obs_size), dtype=np.float32)
@@ -442,14 +508,13 @@ class VSWristVectorEnv(VectorEnv):
             obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
             for k, msg in failures.items():
                 extras[idx[k]] = {"simulation_error": msg}
-        for i in np.flatnonzero(resetting).tolist():
-            o, rows[i] = envs[i].reset()
+        for i in reset_now:
+            o, rows[i] = self._end_reset(i, started)
             obs[i] = self._flat(o)
-        self._refresh_handles(np.flatnonzero(resetting).tolist())
-        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
         if same_step:
             done = np.flatnonzero(term | trunc).tolist()
             if done:
+                self._start_resets([i for i in done if i not in started], started)
                 pos = {i: k for k, i in enumerate(idx)}
                 for i in done:
                     if per_world:
@@ -459,10 +524,9 @@ class VSWristVectorEnv(VectorEnv):
                         final_info = {key: (v[k].item() if v.ndim == 1 else v[k]) for key, v in cols.items()}
                         final_info.update(extras.pop(i, {}))
                     final_obs = self._unflat(obs[i].copy())
-                    o, info = envs[i].reset()
+                    o, info = self._end_reset(i, started)
                     obs[i] = self._flat(o)
                     rows[i] = dict(info, final_obs=final_obs, final_info=final_info)
-                self._refresh_handles(done)
             self._autoreset = np.zeros(n, dtype=bool)
         else:
             self._autoreset = term | trunc

@@ -129,10 +129,11 @@ extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int cou
   return nbad;
 }
 
-/* A pool of threads that runs one batch's chunks (positions bounds[c]..bounds[c+1] of worlds) in order of c,
-   without Python: the caller submits, then waits for each chunk in turn and works on the finished ones (the
-   wait is a ctypes call, so it holds no GIL) while the threads step the rest. One job at a time: the caller
-   waits for all chunks before the next submit. */
+/* A pool of threads that runs one batch's chunks (positions bounds[c]..bounds[c+1] of worlds), claimed in
+   order of c, without Python. The caller submits, then works on the finished chunks (their rewards and
+   observations, in Python) and, when none is finished, steps an unclaimed chunk itself (run_one) or waits:
+   every call is a ctypes call, so the caller holds no GIL meanwhile, and caller + pool threads = the cores.
+   One job at a time: the caller waits for all chunks before the next submit. */
 struct Job {
   const uint64_t* h; const int32_t* worlds; const double* theta; const int32_t* ctrl_idx;
   int nstep, sync; int32_t* status; double* seconds; const int32_t* bounds; int nchunks;
@@ -147,21 +148,25 @@ struct Pool {
   bool stop = false;
   std::vector<char> done;
 
+  /* runs chunk c (claimed under the lock, which lk holds on entry and on return) */
+  void run_chunk(std::unique_lock<std::mutex>& lk, int c) {
+    Job j = job;
+    lk.unlock();
+    int lo = j.bounds[c], hi = j.bounds[c + 1];
+    vswrist_advance(j.h, j.worlds + lo, hi - lo, j.theta + 4 * lo, j.ctrl_idx, j.nstep, j.sync, j.status + lo,
+                    j.seconds ? j.seconds + lo : NULL);
+    lk.lock();
+    done[c] = 1;
+    ndone++;
+    done_cv.notify_all();
+  }
+
   void run() {
     std::unique_lock<std::mutex> lk(mu);
     for (;;) {
       work.wait(lk, [&] { return stop || next < job.nchunks; });
       if (stop) return;
-      int c = next++;
-      Job j = job;
-      lk.unlock();
-      int lo = j.bounds[c], hi = j.bounds[c + 1];
-      vswrist_advance(j.h, j.worlds + lo, hi - lo, j.theta + 4 * lo, j.ctrl_idx, j.nstep, j.sync, j.status + lo,
-                      j.seconds ? j.seconds + lo : NULL);
-      lk.lock();
-      done[c] = 1;
-      ndone++;
-      done_cv.notify_all();
+      run_chunk(lk, next++);
     }
   }
 };
@@ -195,6 +200,24 @@ extern "C" void vswrist_pool_submit(void* pool, const uint64_t* h, const int32_t
     p->done.assign(nchunks, 0);
   }
   p->work.notify_all();
+}
+
+/* Claims the next unclaimed chunk and runs it on the calling thread; returns it, or -1 if none is left. */
+extern "C" int vswrist_pool_run_one(void* pool) {
+  Pool* p = (Pool*)pool;
+  std::unique_lock<std::mutex> lk(p->mu);
+  if (p->next >= p->job.nchunks) return -1;
+  int c = p->next++;
+  p->run_chunk(lk, c);
+  return c;
+}
+
+/* Copies the chunks' done flags into out (nchunks bytes); returns how many are done. */
+extern "C" int vswrist_pool_ready(void* pool, char* out) {
+  Pool* p = (Pool*)pool;
+  std::lock_guard<std::mutex> lk(p->mu);
+  memcpy(out, p->done.data(), p->done.size());
+  return p->ndone;
 }
 
 /* Blocks until chunk c is done (c < 0: every chunk). */
@@ -266,6 +289,10 @@ def load():
                 lib.vswrist_pool_submit.restype = None
                 lib.vswrist_pool_wait.argtypes = [p, i]
                 lib.vswrist_pool_wait.restype = None
+                lib.vswrist_pool_run_one.argtypes = [p]
+                lib.vswrist_pool_run_one.restype = i
+                lib.vswrist_pool_ready.argtypes = [p, p]
+                lib.vswrist_pool_ready.restype = i
                 _lib = lib
     return _lib or None
 
@@ -285,8 +312,10 @@ def advance(lib, handles: np.ndarray, worlds: np.ndarray, theta: np.ndarray, ctr
 
 class Pool:
     """``threads`` C++ threads that step a batch's chunks of worlds (see the source). ``submit`` returns at
-    once; ``wait(c)`` blocks until chunk c is done, ``wait()`` until all are. The arrays given to ``submit``
-    are kept referenced until the next submit, so they outlive the threads' use of them."""
+    once; ``run_one()`` steps the next unclaimed chunk on the calling thread (its index, or -1 if none is
+    left); ``ready()`` gives the chunks' done flags; ``wait(c)`` blocks until chunk c is done, ``wait()`` until
+    all are. The arrays given to ``submit`` are kept referenced until the next submit, so they outlive the
+    threads' use of them."""
 
     def __init__(self, lib, threads: int):
         self._lib, self.threads, self.pid = lib, threads, os.getpid()
@@ -301,6 +330,14 @@ class Pool:
 
     def wait(self, chunk: int = -1) -> None:
         self._lib.vswrist_pool_wait(self._p, chunk)
+
+    def run_one(self) -> int:
+        return self._lib.vswrist_pool_run_one(self._p)
+
+    def ready(self) -> np.ndarray:
+        flags = np.zeros(len(self._keep[-1]) - 1, dtype=np.int8)
+        self._lib.vswrist_pool_ready(self._p, flags.ctypes.data)
+        return flags.astype(bool)
 
     def close(self) -> None:
         """Stops and joins the threads (after the running job, which the caller has waited for)."""

@@ -243,11 +243,12 @@ def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> di
 
     venv = gym.make_vec(LATEST[name], num_envs=n, vectorization_mode="vector_entry_point", threads=threads)
     core = venv.unwrapped
-    # the physics: CPU time inside the worlds' mj_step substeps, timed by the compiled advance itself, or
-    # (where it does not run) around each world's WristSim.step
+    # the physics: CPU time inside the worlds' mj_step substeps: timed by the compiled advance itself, plus
+    # the time in each world's WristSim.step (the resets' settling, and the steps where the compiled advance
+    # does not run)
     compiled = core._advance_fn is not None
     timers = []
-    for e in ([] if compiled else core.envs):
+    for e in core.envs:
         t = _Timer(e.sim.step)
         e.sim.step = t
         timers.append(t)
@@ -266,7 +267,7 @@ def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> di
     for a in acts:
         venv.step(a)
     dt = clock() - t0
-    physics = core.physics_seconds if compiled else sum(t.total for t in timers)
+    physics = (core.physics_seconds if compiled else 0.0) + sum(t.total for t in timers)
     venv.close()
     out = {"task": name, "n": n, "threads": threads, "steps_per_s": n * n_vec / dt,
            "us_per_world_step": 1e6 * dt / (n * n_vec), "compiled_advance": compiled}
