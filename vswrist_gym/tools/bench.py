@@ -246,7 +246,7 @@ def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> di
     # the physics: CPU time inside the worlds' mj_step substeps: timed by the compiled advance itself, plus
     # the time in each world's WristSim.step (the resets' settling, and the steps where the compiled advance
     # does not run)
-    compiled = core._advance_fn is not None
+    compiled = getattr(core, "_advance_fn", None) is not None
     timers = []
     for e in core.envs:
         t = _Timer(e.sim.step)
@@ -440,22 +440,36 @@ def _batched(args, results: dict, cpu) -> None:
     results["batch"] = {"n": n, "tasks": [], "single": []}
     tasks = args.tasks if n else []
     if n:
-        print(f"\nbatched core: {n} worlds; 1 thread pinned to CPU {cpu} (CPU time), then {args.threads} threads "
-              f"on all CPUs (wall time); the single env and a batch of one (CPU time, pinned)")
+        print(f"\nbatched core: {n} worlds; 1 thread pinned to CPU {cpu} (CPU time), then 1 and {args.threads} "
+              f"threads on all CPUs (wall time), {args.repeats} times, medians (speedup: of the pairs); the single "
+              f"env and a batch of one (CPU time, pinned)")
         print(f"{'task':<12}{'1 thr st/s':>11}{'env/phys':>9}{f'{args.threads} thr st/s':>11}{'speedup':>8}"
               f"{'single us':>10}{'batch1 us':>10}")
     for name in tasks:
+        # repeats x (1 thread pinned; 1 thread and `threads` threads back to back, wall time): the medians, and
+        # the median of the per-pair speed-ups, so that the machine's drift between runs cancels
+        ones, manys, walls = [], [], []
+        for _ in range(args.repeats):
+            if cpu is not None:
+                os.sched_setaffinity(0, {cpu})
+            ones.append(bench_batch(name, n, args.steps, 1, pinned=True))
+            try:
+                os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+            except (AttributeError, OSError):
+                pass
+            walls.append(bench_batch(name, n, args.steps, 1, pinned=False))  # the same clock as the threaded run
+            manys.append(bench_batch(name, n, args.steps, args.threads, pinned=False))
+        one = sorted(ones, key=lambda r: r["overhead_ratio"])[len(ones) // 2]
+        many = sorted(manys, key=lambda r: r["steps_per_s"])[len(manys) // 2]
+        one_wall = sorted(walls, key=lambda r: r["steps_per_s"])[len(walls) // 2]
+        speed = statistics.median(m["steps_per_s"] / w["steps_per_s"] for m, w in zip(manys, walls))
         if cpu is not None:
             os.sched_setaffinity(0, {cpu})
-        one = bench_batch(name, n, args.steps, 1, pinned=True)
         single = bench_single(name, max(args.steps // 2, 10), args.repeats)
         try:
             os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
         except (AttributeError, OSError):
             pass
-        many = bench_batch(name, n, args.steps, args.threads, pinned=False)
-        one_wall = bench_batch(name, n, args.steps, 1, pinned=False)  # the same clock as the threaded run
-        speed = many["steps_per_s"] / one_wall["steps_per_s"]
         results["batch"]["tasks"].append({"one_thread": one, "threads": many, "one_thread_wall": one_wall,
                                           "speedup": speed})
         results["batch"]["single"].append(dict(single, task=name))
