@@ -10,13 +10,19 @@ works per world). One ``step`` of the batch:
 3. before the physics: action clipping and maps, and the analytic controller (modes ``posture_stiffness`` and
    ``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics
    and the ``motor`` mode world by world; then each task's ``_before_physics`` hook world by world;
-4. the physics of all worlds: one control period each, ``mj_step(m, d, nstep)`` per world on a pool of
-   ``threads`` threads, each thread a contiguous chunk of worlds. MuJoCo's bindings release the GIL inside
-   ``mj_step``, and the compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and
-   Polish's and Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable state (theirs
-   lives in each MjData's ``plugin_data``/``plugin_state``), so worlds advance in parallel; no task steps
-   substep by substep from Python. With the Python fallback callbacks (no C compiler) each substep re-enters
-   Python, so threads would only contend for the GIL: the batch then steps serially;
+4. the physics of all worlds: one control period each, through the compiled advance (``model.advance_lib``:
+   per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
+   ``threads`` threads, ``CHUNKS_PER_THREAD`` chunks per thread are stepped by the library's ``threads - 1``
+   threads and by the calling thread, which computes step 5 for the chunks already done whenever there are
+   some, and otherwise steps the next chunk: the Python of some worlds runs beside the physics of others.
+   The compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and Polish's and
+   Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable state (theirs lives in each
+   MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds advance in
+   parallel; no task steps substep by substep from Python. The worlds that reset at this step settle (the
+   reset's physics) on a thread pool meanwhile. Without a C++ compiler, or for worlds with actuation latency,
+   each world runs ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads``
+   threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
+   only contend for the GIL: the batch then steps serially;
 5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure: gathered
    from the MjData into (N, .) arrays), its task hooks (``_contact_force``, ``_reference``,
    ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own

@@ -26,18 +26,12 @@ the batch steps world by world through ``WristSim``.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
-import shutil
-import subprocess
-import sys
-import tempfile
 from pathlib import Path
 
-import mujoco
 import numpy as np
 
-from .plugin_lib import _cache_dir, _libmujoco, _mujoco_dir
+from .plugin_lib import build_library
 
 # columns of the handle table (one row per world, uint64): what the call needs of each world's MjModel/MjData
 H_MODEL, H_DATA, H_PEAK, H_METER, H_METER_SIZE = range(5)
@@ -238,32 +232,9 @@ for _key, _value in {"COLUMNS": HANDLE_COLUMNS, "MODEL": H_MODEL, "DATA": H_DATA
 _lib = None  # the loaded library's function, False where it cannot be built
 
 
-def _library_path() -> Path:
-    key = hashlib.sha256((SOURCE + mujoco.__version__ + sys.platform).encode()).hexdigest()[:16]
-    return _cache_dir() / f"vswrist_advance_{key}.so"
-
-
 def compile_library() -> Path:
     """Compile the library (once; atomically, safe with parallel processes) and return its path."""
-    target = _library_path()
-    if target.is_file():
-        return target
-    compiler = os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++") or shutil.which("clang++")
-    if compiler is None:
-        raise RuntimeError("no C++ compiler (g++/c++/clang++) found")
-    mdir = _mujoco_dir()
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
-        src = Path(tmp) / "vswrist_advance.cc"
-        src.write_text(SOURCE)
-        out = Path(tmp) / target.name
-        cmd = [compiler, "-O2", "-shared", "-fPIC", "-pthread", f"-I{mdir / 'include'}", str(src), "-o", str(out),
-               str(_libmujoco()), f"-Wl,-rpath,{mdir}"]
-        res = subprocess.run(cmd, capture_output=True, text=True)
-        if res.returncode != 0:
-            raise RuntimeError(f"compiling the VS-Wrist advance library failed: {' '.join(cmd)}\n{res.stderr}")
-        os.replace(out, target)
-    return target
+    return build_library(SOURCE, "vswrist_advance", ".cc", ("CXX", "g++", "c++", "clang++"), ["-pthread"])
 
 
 def load():
@@ -344,3 +315,9 @@ class Pool:
         if self._p is not None and self.pid == os.getpid():  # a forked child has no threads to join
             self._lib.vswrist_pool_free(self._p)
         self._p = None
+
+    def __del__(self):  # a batch dropped without close(): its idle threads are joined here
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown: the library may be gone already
+            pass

@@ -497,9 +497,9 @@ def _cache_dir() -> Path:
     return Path(root) / "vswrist_gym"
 
 
-def _library_path() -> Path:
-    key = hashlib.sha256((PLUGIN_SOURCE + mujoco.__version__ + sys.platform).encode()).hexdigest()[:16]
-    return _cache_dir() / f"vswrist_plugin_{key}.so"
+def _library_path(source: str = PLUGIN_SOURCE, stem: str = "vswrist_plugin") -> Path:
+    key = hashlib.sha256((source + mujoco.__version__ + sys.platform).encode()).hexdigest()[:16]
+    return _cache_dir() / f"{stem}_{key}.so"
 
 
 def _libmujoco() -> Path:
@@ -510,9 +510,13 @@ def _libmujoco() -> Path:
     return libs[0]
 
 
-def compile_library(force: bool = False) -> Path:
-    """Compile the plugin library (once; atomically, safe with parallel processes) and return its path."""
-    target = _library_path()
+def build_library(source: str, stem: str, suffix: str, compilers: tuple[str, ...], flags: list[str],
+                  force: bool = False) -> Path:
+    """Compile ``source`` (a file ``stem + suffix``) against the MuJoCo wheel's headers and library, once per
+    source and MuJoCo version, into the cache directory (or the temporary one where home is read-only);
+    atomically, safe with parallel processes. ``compilers``: an environment variable naming the compiler,
+    then the commands to try. Returns the library's path."""
+    target = _library_path(source, stem)
     if target.is_file() and not force:
         return target
     try:
@@ -523,25 +527,30 @@ def compile_library(force: bool = False) -> Path:
         target = Path(tempfile.gettempdir()) / f"vswrist_gym_{os.getuid() if hasattr(os, 'getuid') else 0}" / target.name
         if target.is_file() and not force:
             return target
-    compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    env_var, *commands = compilers
+    compiler = os.environ.get(env_var) or next(filter(None, map(shutil.which, commands)), None)
     if compiler is None:
-        raise RuntimeError("no C compiler (gcc/cc) found")
+        raise RuntimeError(f"no compiler ({'/'.join(commands)}) found")
     mdir = _mujoco_dir()
-    libmujoco = _libmujoco()
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
-        src = Path(tmp) / "vswrist_plugin.c"
-        src.write_text(PLUGIN_SOURCE)
+        src = Path(tmp) / f"{stem}{suffix}"
+        src.write_text(source)
         out = Path(tmp) / target.name
-        # -fexceptions: the plugin calls mju_error, which the Python bindings turn into a C++ exception that
-        # must unwind through these frames
-        cmd = [compiler, "-O2", "-shared", "-fPIC", "-fexceptions", f"-I{mdir / 'include'}", str(src), "-o",
-               str(out), str(libmujoco), f"-Wl,-rpath,{mdir}", "-lm"]
+        cmd = [compiler, "-O2", "-shared", "-fPIC", *flags, f"-I{mdir / 'include'}", str(src), "-o", str(out),
+               str(_libmujoco()), f"-Wl,-rpath,{mdir}", "-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True)
         if res.returncode != 0:
-            raise RuntimeError(f"compiling the VS-Wrist plugin failed: {' '.join(cmd)}\n{res.stderr}")
+            raise RuntimeError(f"compiling {stem} failed: {' '.join(cmd)}\n{res.stderr}")
         os.replace(out, target)
     return target
+
+
+def compile_library(force: bool = False) -> Path:
+    """Compile the plugin library (once; atomically, safe with parallel processes) and return its path."""
+    # -fexceptions: the plugin calls mju_error, which the Python bindings turn into a C++ exception that must
+    # unwind through these frames
+    return build_library(PLUGIN_SOURCE, "vswrist_plugin", ".c", ("CC", "gcc", "cc"), ["-fexceptions"], force)
 
 
 def load_plugin() -> Path:
