@@ -221,9 +221,9 @@ class WristKinematics:
         p = frames[-1][:3, 3]
         J = np.empty((6, 4))
         for i in range(4):
-            z, o = frames[i][:3, 2], frames[i][:3, 3]
-            J[:3, i] = z
-            J[3:, i] = np.cross(z, p - o)
+            J[:3, i] = frames[i][:3, 2]
+        O = np.column_stack([frames[i][:3, 3] for i in range(4)])
+        J[3:] = np.cross(J[:3], p[:, None] - O, axis=0)  # the four columns at once (one call: resets use this)
         return J
 
     def ik_jacobian(self, u: np.ndarray, allow_outside: bool = False) -> np.ndarray:
