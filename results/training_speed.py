@@ -99,8 +99,9 @@ def main(argv=None) -> int:
                                             str(with_envs(args.worlds, f"batch{args.worlds}"))]
 
     results = {}
-    for name, extra in settings.items():
-        for seed in args.seeds:
+    # seed by seed, the settings back to back: the machine's drift over the runs falls on every setting alike
+    for seed in args.seeds:
+        for name, extra in settings.items():
             run = out / f"{name}_seed{seed}"
             cmd = [sys.executable, "-m", "vswrist_gym.cli", "train", "--task", env_id, "--algo", args.algo,
                    "--timesteps", str(args.timesteps), "--seed", str(seed), "--out", str(run), "--no-progress",
