@@ -524,7 +524,8 @@ def build_library(source: str, stem: str, suffix: str, compilers: tuple[str, ...
         probe = tempfile.NamedTemporaryFile(dir=target.parent)
         probe.close()
     except OSError:  # read-only home: build in the temporary directory instead
-        target = Path(tempfile.gettempdir()) / f"vswrist_gym_{os.getuid() if hasattr(os, 'getuid') else 0}" / target.name
+        uid = os.getuid() if hasattr(os, "getuid") else 0
+        target = Path(tempfile.gettempdir()) / f"vswrist_gym_{uid}" / target.name
         if target.is_file() and not force:
             return target
     env_var, *commands = compilers
