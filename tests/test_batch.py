@@ -423,3 +423,29 @@ def test_a_task_overriding_a_step_method_is_stepped_world_by_world(monkeypatch):
     _, _, _, _, info = venv.step(np.zeros(venv.action_space.shape))
     assert info["_extra_metric"].all() and (info["extra_metric"] == 1.5).all()
     venv.close()
+
+
+@pytest.mark.parametrize("env_id", ["VSWrist/LoadHold-v0", "VSWrist/Polish-v1"])
+@pytest.mark.parametrize("mode", [gym.vector.AutoresetMode.NEXT_STEP, gym.vector.AutoresetMode.SAME_STEP])
+def test_threads_and_chunks_give_the_one_thread_numbers(env_id, mode):
+    """8 worlds on 2 threads (8 chunks: the caller finishes chunks while others step, and resets settle on the
+    pool) against the same batch on one thread, through autoresets and a divergence."""
+    cfg = {"episode_s": 0.2}
+    one, two = (make_batch(env_id, n=8, config=cfg, threads=t, array_step=True, autoreset_mode=mode) for t in (1, 2))
+    assert two.unwrapped.threads == 2
+    rng = np.random.default_rng(3)
+    for venv in (one, two):
+        venv.reset(seed=11)
+    for t in range(30):
+        acts = rng.uniform(-1, 1, one.action_space.shape)
+        if t == 7:
+            for venv in (one, two):
+                venv.unwrapped.envs[5].data.qvel[:] = 1e12
+        out1, out2 = one.step(acts), two.step(acts)
+        for a, b in zip(out1[:4], out2[:4]):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-9, err_msg=f"step {t}")
+        _same_vector_info(out1[4], out2[4], f"step {t}")
+        if t == 7:
+            assert out2[2][5]  # the diverged world ended its episode
+    for venv in (one, two):
+        venv.close()
