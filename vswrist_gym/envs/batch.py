@@ -12,9 +12,10 @@ works per world). One ``step`` of the batch:
    and the ``motor`` mode world by world; then each task's ``_before_physics`` hook world by world;
 4. the physics of all worlds: one control period each, through the compiled advance (``model.advance_lib``:
    per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
-   ``threads`` threads, ``CHUNKS_PER_THREAD`` chunks per thread are stepped by the library's ``threads - 1``
-   threads and by the calling thread, which computes step 5 for the chunks already done whenever there are
-   some, and otherwise steps the next chunk: the Python of some worlds runs beside the physics of others.
+   ``threads`` threads, up to ``CHUNKS_PER_THREAD`` chunks per thread (of at least ``MIN_CHUNK_WORLDS`` worlds)
+   are stepped by the library's ``threads - 1`` threads and by the calling thread, which computes step 5 for
+   the chunks already done whenever there are some, and otherwise steps the next chunk: the Python of some
+   worlds runs beside the physics of others.
    The compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and Polish's and
    Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable state (theirs lives in each
    MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds advance in
@@ -63,9 +64,11 @@ from .rewards import wrap_angle
 from .shared import PeriodMeanForce
 
 ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
-# chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``): more chunks balance the
-# threads better, fewer keep the fixed cost of each ``_finish`` call low
+# chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
+# MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and let the Python of more worlds run beside
+# the physics; fewer keep the fixed cost of the ``_finish`` calls low (about 0.2 ms each, the cost of ~10 worlds)
 CHUNKS_PER_THREAD = 4
+MIN_CHUNK_WORLDS = 4
 # the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
 # by world); the hooks it calls per world, or over arrays (``_tracking_error``), stay the task's
 STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
@@ -316,7 +319,7 @@ class VSWristVectorEnv(VectorEnv):
     def _native_step(self, worlds: list, idx: list, A: np.ndarray | None, theta: np.ndarray | None,
                      per_world: bool, started: dict | None = None, meanwhile=None):
         """The physics of the live worlds through the compiled advance. On one thread: one call. On ``threads``
-        threads: ``CHUNKS_PER_THREAD`` x threads chunks of worlds, stepped by the library's ``threads - 1``
+        threads: up to ``CHUNKS_PER_THREAD`` x threads chunks of worlds, stepped by the library's ``threads - 1``
         threads and by this one, which, whenever chunks are done, first computes their rewards and
         observations (the array step's ``_finish``, over all the chunks done by then) and otherwise steps the
         next chunk itself: every core keeps busy and the Python runs beside the physics. Each world's numbers
@@ -343,14 +346,14 @@ class VSWristVectorEnv(VectorEnv):
             if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
                 self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
 
-        if self.threads == 1 or L < 2:
+        k = min(CHUNKS_PER_THREAD * self.threads, L // MIN_CHUNK_WORLDS)
+        if self.threads == 1 or k < 2:
             if meanwhile is not None:
                 meanwhile()
             advance_lib.advance(lib, self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status,
                                 seconds)
             finish(list(range(L)))
         else:
-            k = min(L, CHUNKS_PER_THREAD * self.threads)
             bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
             pool = self._cpool
             if pool is None or pool.pid != os.getpid():  # made here: threads do not survive a fork
