@@ -69,7 +69,7 @@ def _recorded(summary: dict) -> dict:
 
 @pytest.mark.parametrize("name,channel", [
     ("results", None), ("long", None), ("long200", None), ("sac_drill", None), ("sac_long", None),
-    ("sac_insertion", None),
+    ("sac_insertion", None), ("sac_tuned", None),
     ("ablation_posture_only", "stiffness_scale"), ("ablation_stiffness_only", "posture_scale"),
     ("long_stiffness", "posture_scale"), ("hammer_stiffness", "posture_scale"),
     ("tuned_stiffness", "posture_scale"), ("tuned_stiffness_fs1", "posture_scale"),
@@ -79,7 +79,9 @@ def test_committed_sweeps_describe_the_committed_tables(name, channel):
     """Each sweep file reruns the grid its committed tables came from: the tasks, seeds, episodes, stiffness
     levels and budgets recorded in OUT/<Task>/summary.json, and an ablation switches off exactly one channel."""
     sw = load_sweep(SWEEPS / f"{name}.yaml")
-    base = hparams.load_file(hparams.default_config_path(sw.algos[0]))
+    algo = sw.algos[0]
+    # the channels are checked against the hyperparameter file the sweep trains from (a tuned file sets its own)
+    base = hparams.load_file(ROOT / sw.configs[algo] if algo in sw.configs else hparams.default_config_path(algo))
     for env_id in sw.env_ids:
         summary = json.loads((ROOT / sw.out / env_id.split("/")[1].rsplit("-v", 1)[0] / "summary.json").read_text())
         trials = [t for t in sw.trials() if t["env_id"] == env_id]
