@@ -276,6 +276,49 @@ def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> di
     return out
 
 
+def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> float | None:
+    """The hardware's ceiling for the batch's thread speed-up, in the same run: the physics alone of ``n``
+    worlds (the compiled advance: substeps and sync, no Python) on ``threads`` threads against one thread,
+    wall time. None without the compiled advance."""
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+    from vswrist_gym.model import advance_lib
+
+    venv = gym.make_vec(LATEST[name], num_envs=n, vectorization_mode="vector_entry_point", threads=1)
+    core = venv.unwrapped
+    lib = getattr(core, "_advance_fn", None)
+    if lib is None:
+        venv.close()
+        return None
+    venv.reset(seed=0)
+    worlds = np.arange(n, dtype=np.int32)
+    theta = np.ascontiguousarray([e.sim.motor_references() for e in core.envs])
+    status = np.zeros(n, dtype=np.int32)
+    bounds = np.linspace(0, n, 4 * threads + 1).round().astype(np.int32)
+    pool = advance_lib.Pool(lib, threads - 1)
+    reps = max(steps // n, 10)
+
+    def run(t: int) -> float:
+        t0 = time.perf_counter()
+        for _ in range(reps):
+            if t == 1:
+                advance_lib.advance(lib, core._handles, worlds, theta, core._ctrl_idx, core._nstep, core._sync,
+                                    status)
+            else:
+                pool.submit(core._handles, worlds, theta, core._ctrl_idx, core._nstep, core._sync, status, None,
+                            bounds)
+                while pool.run_one() >= 0:
+                    pass
+                pool.wait()
+        return time.perf_counter() - t0
+
+    one, many = run(1), run(threads)
+    pool.close()
+    venv.close()
+    return one / many
+
+
 def bench_array_step(name: str, n: int, steps: int, repeats: int) -> dict:
     """us per world-step (CPU time, one thread) of a batch of ``n`` worlds through the array step and through
     the single env's phases world by world (``VSWristVectorEnv.array_step``), interleaved run by run on the
@@ -443,12 +486,14 @@ def _batched(args, results: dict, cpu) -> None:
         print(f"\nbatched core: {n} worlds; 1 thread pinned to CPU {cpu} (CPU time), then 1 and {args.threads} "
               f"threads on all CPUs (wall time), {args.repeats} times, medians (speedup: of the pairs); the single "
               f"env and a batch of one (CPU time, pinned)")
+        print("ceiling: the physics alone (compiled advance, no Python) on the same threads / 1 thread, in the same "
+              "run: what this machine's cores give at that moment")
         print(f"{'task':<12}{'1 thr st/s':>11}{'env/phys':>9}{f'{args.threads} thr st/s':>11}{'speedup':>8}"
-              f"{'single us':>10}{'batch1 us':>10}")
+              f"{'ceiling':>8}{'single us':>10}{'batch1 us':>10}")
     for name in tasks:
         # repeats x (1 thread pinned; 1 thread and `threads` threads back to back, wall time): the medians, and
         # the median of the per-pair speed-ups, so that the machine's drift between runs cancels
-        ones, manys, walls = [], [], []
+        ones, manys, walls, ceilings = [], [], [], []
         for _ in range(args.repeats):
             if cpu is not None:
                 os.sched_setaffinity(0, {cpu})
@@ -459,10 +504,12 @@ def _batched(args, results: dict, cpu) -> None:
                 pass
             walls.append(bench_batch(name, n, args.steps, 1, pinned=False))  # the same clock as the threaded run
             manys.append(bench_batch(name, n, args.steps, args.threads, pinned=False))
+            ceilings.append(bench_physics_scaling(name, n, args.steps, args.threads))
         one = sorted(ones, key=lambda r: r["overhead_ratio"])[len(ones) // 2]
         many = sorted(manys, key=lambda r: r["steps_per_s"])[len(manys) // 2]
         one_wall = sorted(walls, key=lambda r: r["steps_per_s"])[len(walls) // 2]
         speed = statistics.median(m["steps_per_s"] / w["steps_per_s"] for m, w in zip(manys, walls))
+        ceiling = statistics.median(ceilings) if None not in ceilings else None
         if cpu is not None:
             os.sched_setaffinity(0, {cpu})
         single = bench_single(name, max(args.steps // 2, 10), args.repeats)
@@ -471,10 +518,11 @@ def _batched(args, results: dict, cpu) -> None:
         except (AttributeError, OSError):
             pass
         results["batch"]["tasks"].append({"one_thread": one, "threads": many, "one_thread_wall": one_wall,
-                                          "speedup": speed})
+                                          "speedup": speed, "physics_speedup": ceiling})
         results["batch"]["single"].append(dict(single, task=name))
         print(f"{name:<12}{one['steps_per_s']:>11.0f}{one['overhead_ratio']:>9.2f}{many['steps_per_s']:>11.0f}"
-              f"{speed:>8.2f}{single['single']:>10.0f}{single['batch1']:>10.0f}")
+              f"{speed:>8.2f}{'-' if ceiling is None else f'{ceiling:.2f}':>8}{single['single']:>10.0f}"
+              f"{single['batch1']:>10.0f}")
         rows.append((name, one, speed, single))
     mem = bench_memory("Insertion", args.memory) if args.memory else None
     if mem is not None:
