@@ -354,26 +354,36 @@ def test_array_step_equals_the_world_by_world_step(env_id, cfg, threads):
     kw = dict(config=cfg, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
     fast, slow = make_batch(env_id, array_step=True, threads=threads, **kw), make_batch(env_id, threads=1, **kw)
     assert N < ARRAY_MIN_WORLDS and not slow.unwrapped.array_step
-    rng = np.random.default_rng(0)
-    for venv in (fast, slow):
-        venv.reset(seed=7)
-    for t in range(30):
-        acts = rng.uniform(-1, 1, fast.action_space.shape)
-        if t == 12:
-            for venv in (fast, slow):
-                venv.unwrapped.envs[2].data.qvel[:] = 1e12
-        out_f, out_s = fast.step(acts), slow.step(acts)
-        for a, b in zip(out_f[:4], out_s[:4]):
-            if isinstance(a, dict):
-                for k in a:
-                    np.testing.assert_allclose(a[k], b[k], rtol=0, atol=1e-9, err_msg=f"step {t} obs {k}")
+    out_f = _step_twins(fast, slow, seed=7, rng_seed=0, diverge=(2, 12))
+    assert out_f[2][2] and out_f[4]["final_info"]["simulation_error"][2]
+
+
+def _step_twins(a, b, seed: int, rng_seed: int, diverge: tuple[int, int], steps: int = 30):
+    """Steps two batches with the same random actions from ``reset(seed)``, poisons world ``diverge[0]``'s
+    velocities in both before step ``diverge[1]``, and checks every output equal (1e-9); returns ``a``'s output
+    of the divergence step."""
+    rng = np.random.default_rng(rng_seed)
+    for venv in (a, b):
+        venv.reset(seed=seed)
+    at_divergence = None
+    for t in range(steps):
+        acts = rng.uniform(-1, 1, a.action_space.shape)
+        if t == diverge[1]:
+            for venv in (a, b):
+                venv.unwrapped.envs[diverge[0]].data.qvel[:] = 1e12
+        out_a, out_b = a.step(acts), b.step(acts)
+        for x, y in zip(out_a[:4], out_b[:4]):
+            if isinstance(x, dict):
+                for k in x:
+                    np.testing.assert_allclose(x[k], y[k], rtol=0, atol=1e-9, err_msg=f"step {t} obs {k}")
             else:
-                np.testing.assert_allclose(a, b, rtol=0, atol=1e-9, err_msg=f"step {t}")
-        _same_vector_info(out_f[4], out_s[4], f"step {t}")
-        if t == 12:
-            assert out_f[2][2] and out_f[4]["final_info"]["simulation_error"][2]
-    for venv in (fast, slow):
+                np.testing.assert_allclose(x, y, rtol=0, atol=1e-9, err_msg=f"step {t}")
+        _same_vector_info(out_a[4], out_b[4], f"step {t}")
+        if t == diverge[1]:
+            at_divergence = out_a
+    for venv in (a, b):
         venv.close()
+    return at_divergence
 
 
 def test_sb3_adapter_infos_are_the_same_on_both_steps():
@@ -428,24 +438,10 @@ def test_a_task_overriding_a_step_method_is_stepped_world_by_world(monkeypatch):
 @pytest.mark.parametrize("env_id", ["VSWrist/LoadHold-v0", "VSWrist/Polish-v1"])
 @pytest.mark.parametrize("mode", [gym.vector.AutoresetMode.NEXT_STEP, gym.vector.AutoresetMode.SAME_STEP])
 def test_threads_and_chunks_give_the_one_thread_numbers(env_id, mode):
-    """8 worlds on 2 threads (8 chunks: the caller finishes chunks while others step, and resets settle on the
-    pool) against the same batch on one thread, through autoresets and a divergence."""
+    """8 worlds on 2 threads (2 chunks of 4: the caller finishes one chunk while the other steps, and resets
+    settle on the pool) against the same batch on one thread, through autoresets and a divergence."""
     cfg = {"episode_s": 0.2}
     one, two = (make_batch(env_id, n=8, config=cfg, threads=t, array_step=True, autoreset_mode=mode) for t in (1, 2))
     assert two.unwrapped.threads == 2
-    rng = np.random.default_rng(3)
-    for venv in (one, two):
-        venv.reset(seed=11)
-    for t in range(30):
-        acts = rng.uniform(-1, 1, one.action_space.shape)
-        if t == 7:
-            for venv in (one, two):
-                venv.unwrapped.envs[5].data.qvel[:] = 1e12
-        out1, out2 = one.step(acts), two.step(acts)
-        for a, b in zip(out1[:4], out2[:4]):
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-9, err_msg=f"step {t}")
-        _same_vector_info(out1[4], out2[4], f"step {t}")
-        if t == 7:
-            assert out2[2][5]  # the diverged world ended its episode
-    for venv in (one, two):
-        venv.close()
+    out = _step_twins(two, one, seed=11, rng_seed=3, diverge=(5, 7))
+    assert out[2][5]  # the diverged world ended its episode
