@@ -274,8 +274,8 @@ class VSWristVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------ the compiled advance
     def _refresh_handles(self, worlds) -> None:
-        """Handle-table rows of ``worlds`` (after a reset: randomisation may rebuild a world's simulator, and
-        draws its latency); a world whose period the compiled call cannot reproduce is marked blocked."""
+        """Handle-table rows of ``worlds`` (after a reset: randomisation may rebuild a world's simulator); a world
+        whose simulator the compiled call cannot step as ``_advance`` would is marked blocked."""
         H = advance_lib
         for i in worlds:
             e = self.envs[i]
@@ -287,7 +287,7 @@ class VSWristVectorEnv(VectorEnv):
             row[H.H_METER] = 0 if meter is None else meter.ctypes.data
             row[H.H_METER_SIZE] = 0 if meter is None else meter.size
             self._handle_sims[i] = sim
-            self._blocked[i] = (e._latency > 0.0 or (self._meter_task and meter is None)
+            self._blocked[i] = ((self._meter_task and meter is None)
                                 or int(round(e.ctrl_dt / sim.timestep)) != self._nstep
                                 or not np.array_equal(sim._act_ids, self._ctrl_idx))
 
@@ -299,7 +299,8 @@ class VSWristVectorEnv(VectorEnv):
         stale = [i for i in idx if envs[i].sim is not sims[i]]
         if stale:
             self._refresh_handles(stale)
-        return not self._blocked[idx].any()
+        # actuation latency (two references within the period) is drawn at each reset, however it was called
+        return not self._blocked[idx].any() and not any(envs[i]._latency > 0.0 for i in idx)
 
     def _after_native(self, worlds: list, idx: list, status: np.ndarray) -> None:
         """What ``_advance`` leaves on each world and its simulator, from the compiled call's status."""
