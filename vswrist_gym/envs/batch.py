@@ -66,7 +66,7 @@ from .shared import PeriodMeanForce
 ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
 # chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
 # MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and let the Python of more worlds run beside
-# the physics; fewer keep the fixed cost of the ``_finish`` calls low (about 0.2 ms each, the cost of ~10 worlds)
+# the physics; fewer keep the fixed cost of the ``_finish`` calls (one per group of done chunks) low
 CHUNKS_PER_THREAD = 4
 MIN_CHUNK_WORLDS = 4
 # the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
