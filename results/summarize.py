@@ -2,7 +2,8 @@
 
     python3 results/summarize.py [DIR ...]
         (default: results, results/long, results/long200, results/ablation, results/ablation_stiffness,
-         results/long_stiffness, results/sac, results/sac_tuned, results/main_job)
+         results/long_stiffness, results/sac, results/sac_tuned, results/sac_hammer,
+         results/sac_hammer_posture_only, results/main_job)
 
 For each task and learned agent: its return and success (mean and Student-t 95 % CI over seeds), the best
 fixed-stiffness analytic baseline (highest mean return) with the same, the paired difference in return on the
@@ -17,7 +18,7 @@ from pathlib import Path
 
 from vswrist_gym.agents.compare import against_baseline, best_baseline
 
-TASK_ORDER = ("Polish", "Drill", "Insertion", "Impact", "LoadHold")
+TASK_ORDER = ("Polish", "Drill", "Insertion", "Impact", "LoadHold", "Hammer")
 
 
 def _ci(s: dict, fmt: str = "{:+.1f}") -> str:
@@ -64,7 +65,7 @@ def table(result_dir: Path) -> str:
 
 
 def main(argv: list[str]) -> int:
-    defaults = [Path(f"results/{d}") for d in ("", "long", "long200", "ablation", "ablation_stiffness", "long_stiffness", "sac", "sac_tuned", "main_job")]
+    defaults = [Path(f"results/{d}") for d in ("", "long", "long200", "ablation", "ablation_stiffness", "long_stiffness", "sac", "sac_tuned", "sac_hammer", "sac_hammer_posture_only", "main_job")]
     dirs = [Path(d) for d in argv] or [p for p in defaults if p.is_dir()]
     for d in dirs:
         print(f"{d}:\n\n{table(d)}\n")
