@@ -175,3 +175,40 @@ def test_trial_cpus_follow_the_vec_env(tmp_path):
         os.chdir(cwd)
     assert [t["cpus"] for t in batch] == [1, 1] and [t["n_envs"] for t in batch] == [8, 8]
     assert [t["cpus"] for t in sub] == [8, 8]
+
+
+def _episode_keys(out: Path, env_id: str, agent: str = "ppo") -> set:
+    doc = json.loads((ROOT / out / env_id.split("/")[1].rsplit("-v", 1)[0] / "eval" / agent / "metrics.json").read_text())
+    return {(e["seed"], e["reset_seed"]) for e in doc["episodes"]}
+
+
+@pytest.mark.parametrize("full,ablation,held", [
+    ("contribution_polish_full", "contribution_polish_posture_only", {}),
+    ("contribution_polish_full", "contribution_polish_posture_only_s05", {"stiffness_nominal": 0.5}),
+])
+def test_contribution_pairs_differ_only_in_the_stiffness_channel(full, ablation, held):
+    """A stiffness-contribution pair (results/README.md section 10) trains the same entry on the same seeds and
+    evaluates it on the same episodes; the ablation closes the stiffness channel (and may hold another constant),
+    the posture channel is open in both. Each file's committed summary records what the file runs."""
+    sws = [load_sweep(SWEEPS / f"{name}.yaml") for name in (full, ablation)]
+    assert sws[0].env_ids == sws[1].env_ids and sws[0].seeds == sws[1].seeds
+    assert sws[0].episodes == sws[1].episodes and sws[0].timesteps == sws[1].timesteps
+    for sw in sws:
+        for env_id in sw.env_ids:
+            summary = json.loads((ROOT / sw.out / env_id.split("/")[1].rsplit("-v", 1)[0] / "summary.json").read_text())
+            trials = [t for t in sw.trials() if t["env_id"] == env_id]
+            learned = [t for t in trials if t["kind"] == "learned"]
+            assert _recorded(summary) == {
+                "task": env_id, "seeds": sorted({t["seed"] for t in learned}), "episodes": sw.episodes,
+                "stiffness": [t["stiffness"] for t in trials if t["kind"] == "analytic"],
+                "timesteps": {t["algo"]: t["timesteps"] for t in learned}}
+    for env_id in sws[0].env_ids:
+        a, b = (sw.entries[("ppo", env_id)] for sw in sws)
+        ra, rb = a["env_kwargs"]["residual"], b["env_kwargs"]["residual"]
+        assert ra["stiffness_scale"] > 0 and rb["stiffness_scale"] == 0.0
+        assert ra["posture_scale"] == rb["posture_scale"] > 0
+        assert {k: rb[k] for k in held} == held
+        strip = lambda e: {**e, "env_kwargs": {**e["env_kwargs"], "residual": {  # noqa: E731
+            k: v for k, v in e["env_kwargs"]["residual"].items() if k != "stiffness_scale" and k not in held}}}
+        assert strip(a) == strip(b)
+        assert _episode_keys(sws[0].out, env_id) == _episode_keys(sws[1].out, env_id)
