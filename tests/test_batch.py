@@ -96,11 +96,14 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, la
 @pytest.mark.parametrize("task", record.TASKS)
 def test_single_env_replays_the_recorded_reference(task):
     """The single env (a view of the same step code as the batch) against trajectories recorded from the code
-    before the batched core existed (tests/reference/record.py); exact only on the recording's machine and
-    versions, since MuJoCo's floats differ between CPUs."""
+    before the batched core existed (tests/reference/record.py), with the same library versions. MuJoCo's floats
+    differ between CPUs: replayed on a second CPU (AMD EPYC family 25 model 1, AVX2 without AVX-512, 2026-12-02)
+    the largest difference from the recording was 5.7e-13 relative (Insertion's contact force at 14,340 N in the
+    diverged episode), the rest within 1e-9 absolute; the bound, 1e-9 relative or absolute, leaves a margin of
+    about 1,700x over that spread."""
     ref = np.load(Path(__file__).parent / "reference" / "trajectories.npz")
-    if str(ref["machine"]) != record.machine():
-        pytest.skip(f"reference recorded on {ref['machine']}, this is {record.machine()}")
+    if not str(ref["machine"]).startswith(record.versions() + ","):
+        pytest.skip(f"reference recorded with {ref['machine']}, this is {record.machine()}")
     for seed in record.SEEDS:
         for policy in ("random", "analytic"):
             env = gym.make(vswrist_gym.LATEST[task], config=record.CONFIG)
@@ -109,7 +112,7 @@ def test_single_env_replays_the_recorded_reference(task):
             for k, v in rec.items():
                 want = ref[f"{task}/{seed}/{policy}/{k}"]
                 got = v.astype(np.float32) if k == "obs" else v
-                np.testing.assert_allclose(got, want, rtol=0, atol=1e-9, err_msg=f"{task} {seed} {policy} {k}")
+                np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9, err_msg=f"{task} {seed} {policy} {k}")
 
 
 def test_make_vec_spaces_metadata_and_seeding():

@@ -12,6 +12,10 @@ How much was measured when the card was written: the policy's actions multiplied
 return where that is larger (a task whose episodes the perturbation left unchanged still gets a bound that a
 rounding difference cannot exceed, and a broken policy or statistics file, which moves returns by percent, still
 fails). Success is compared on the card's machine only, since a threshold can flip on a rounding difference.
+The machine is the versions and the CPU's name, family, model and SIMD flags (`ship_policies.cpu_id`): a
+hypervisor can show two generations as the same "AMD EPYC", and a card replayed on one without AVX-512 moved a
+stiffness-track return by 16.8 (Polish, within the cross-machine bound of 146). The shipped cards name the CPU only,
+so they are held to the cross-machine bound on every machine until they are written again.
 """
 
 from __future__ import annotations

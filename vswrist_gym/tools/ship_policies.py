@@ -51,18 +51,32 @@ README_MARKERS = ("<!-- pretrained-table:start -->", "<!-- pretrained-table:end 
 REPO = Path(__file__).resolve().parents[2]
 
 
+def cpu_id() -> str:
+    """The CPU as far as floating-point results depend on it: a hypervisor may show only "AMD EPYC" for CPUs of
+    different generations, whose SIMD extensions (AVX-512 or not) pick different code paths in numpy, torch and
+    MuJoCo, so the family, model and SIMD flags are part of it."""
+    fields = {}
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if not line.strip():
+                    break  # the first processor's block describes them all
+                key, _, value = line.partition(":")
+                fields[key.strip()] = value.strip()
+    except OSError:
+        pass
+    name = fields.get("model name") or platform.processor() or "unknown CPU"
+    simd = sorted(f for f in fields.get("flags", "").split() if f.startswith(("avx", "fma", "amx")))
+    return f"{name} (family {fields.get('cpu family', '?')}, model {fields.get('model', '?')}; {' '.join(simd)})"
+
+
 def machine() -> str:
     """Where the card's returns are exact (MuJoCo's and torch's floats differ between CPUs and versions)."""
     import mujoco
     import torch
 
-    cpu = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next(line for line in fh if line.startswith("model name")).split(":", 1)[1].strip()
-    except (OSError, StopIteration):
-        pass
-    return f"mujoco {mujoco.__version__}, torch {torch.__version__}, numpy {np.__version__}, {platform.machine()}, {cpu}"
+    return (f"mujoco {mujoco.__version__}, torch {torch.__version__}, numpy {np.__version__}, {platform.machine()}, "
+            f"{cpu_id()}")
 
 
 def git_commit() -> dict:
