@@ -122,6 +122,28 @@ def default_config_path(algo: str) -> Path:
     return CONFIG_DIR / f"{algo}.yaml"
 
 
+def read_mapping(path: Path, error: type[Exception], keys: tuple[str, ...], required: tuple[str, ...],
+                 shape: str) -> dict:
+    """The top-level mapping of a YAML file of this package's own formats (sweep and track files), with one-line
+    errors of type ``error``: file missing, not YAML, not a mapping (``shape`` names its keys), a key outside
+    ``keys``, a ``required`` key absent."""
+    if not path.is_file():
+        raise error("file not found")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise error(f"not valid YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(doc, dict):
+        raise error(f"must be a mapping of keys ({shape})")
+    unknown = [k for k in doc if k not in keys]
+    if unknown:
+        raise error(f"unknown key '{unknown[0]}'; allowed: {', '.join(keys)}")
+    for key in required:
+        if key not in doc:
+            raise error(f"'{key}' is required")
+    return doc
+
+
 def read_file(path: str | Path) -> tuple[dict, dict]:
     """(entries, run settings) of a hyperparameter file: the entries map environment ids to RL Zoo entries, the
     run settings are its `vswrist:` section (environment id -> mapping of SECTION_KEYS), empty when absent."""

@@ -37,9 +37,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
-from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, track_of
+from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, read_mapping, track_of
 
 TRACK_KEYS = ("track", "headroom", "out", "runs")
 RUN_KEYS = ("task", "sweep", "dir", "command", "agent", "ablation")
@@ -100,20 +98,7 @@ def load_track(path: str | Path) -> tuple[dict, list[Run]]:
 def _load(path: Path) -> tuple[dict, list[Run]]:
     from vswrist_gym.agents.train import task_id
 
-    if not path.is_file():
-        raise TrackError("file not found")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise TrackError(f"not valid YAML ({' '.join(str(exc).split())})") from None
-    if not isinstance(doc, dict):
-        raise TrackError("must be a mapping of keys (track, headroom, out, runs)")
-    unknown = [k for k in doc if k not in TRACK_KEYS]
-    if unknown:
-        raise TrackError(f"unknown key '{unknown[0]}'; allowed: {', '.join(TRACK_KEYS)}")
-    for key in TRACK_KEYS:
-        if key not in doc:
-            raise TrackError(f"'{key}' is required")
+    doc = read_mapping(path, TrackError, TRACK_KEYS, TRACK_KEYS, "track, headroom, out, runs")
     track = doc["track"]
     if track not in TRACKS:
         raise TrackError(f"'track' must be one of {', '.join(TRACKS)}, got {track!r}")

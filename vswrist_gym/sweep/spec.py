@@ -39,7 +39,7 @@ from pathlib import Path
 
 import yaml
 
-from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config, resolve_entry
+from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, load_config, read_mapping, resolve_entry
 
 
 class SweepError(ConfigError):
@@ -218,20 +218,7 @@ def _load(path: Path) -> Sweep:
     from vswrist_gym.agents.protocol import EVAL_SEED_MAX, check_eval_seeds
     from vswrist_gym.agents.runs import SEED_MAX
 
-    if not path.is_file():
-        raise SweepError("file not found")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise SweepError(f"not valid YAML ({' '.join(str(exc).split())})") from None
-    if not isinstance(doc, dict):
-        raise SweepError("must be a mapping of keys (mode, tasks, algos, seeds, ...)")
-    unknown = [k for k in doc if k not in TOP_KEYS]
-    if unknown:
-        raise SweepError(f"unknown key '{unknown[0]}'; allowed: {', '.join(TOP_KEYS)}")
-    for required in ("tasks", "seeds"):
-        if required not in doc:
-            raise SweepError(f"'{required}' is required")
+    doc = read_mapping(path, SweepError, TOP_KEYS, ("tasks", "seeds"), "mode, tasks, algos, seeds, ...")
     mode = doc.get("mode", "grid")
     if mode not in ("grid", "search"):
         raise SweepError(f"'mode' must be 'grid' or 'search', got {mode!r}")
