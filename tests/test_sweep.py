@@ -67,6 +67,20 @@ def _recorded(summary: dict) -> dict:
             "stiffness": summary["stiffness_levels"], "timesteps": summary["timesteps"]}
 
 
+def _recorded_summary(sw, env_id: str) -> dict:
+    """What the committed OUT/<Task>/summary.json of a sweep's task records about the grid that made it."""
+    return _recorded(json.loads((ROOT / sw.out / env_id.split("/")[1].rsplit("-v", 1)[0] / "summary.json").read_text()))
+
+
+def _as_swept(sw, env_id: str) -> dict:
+    """The same quantities as the sweep file's trials for that task give them."""
+    trials = [t for t in sw.trials() if t["env_id"] == env_id]
+    learned = [t for t in trials if t["kind"] == "learned"]
+    return {"task": env_id, "seeds": sorted({t["seed"] for t in learned}), "episodes": sw.episodes,
+            "stiffness": [t["stiffness"] for t in trials if t["kind"] == "analytic"],
+            "timesteps": {t["algo"]: t["timesteps"] for t in learned}}
+
+
 @pytest.mark.parametrize("name,channel", [
     ("results", None), ("long", None), ("long200", None), ("sac_drill", None), ("sac_long", None),
     ("sac_insertion", None), ("sac_tuned", None),
@@ -86,13 +100,7 @@ def test_committed_sweeps_describe_the_committed_tables(name, channel):
     # the channels are checked against the hyperparameter file the sweep trains from (a tuned file sets its own)
     base = hparams.load_file(ROOT / sw.configs[algo] if algo in sw.configs else hparams.default_config_path(algo))
     for env_id in sw.env_ids:
-        summary = json.loads((ROOT / sw.out / env_id.split("/")[1].rsplit("-v", 1)[0] / "summary.json").read_text())
-        trials = [t for t in sw.trials() if t["env_id"] == env_id]
-        learned = [t for t in trials if t["kind"] == "learned"]
-        as_swept = {"task": env_id, "seeds": sorted({t["seed"] for t in learned}), "episodes": sw.episodes,
-                    "stiffness": [t["stiffness"] for t in trials if t["kind"] == "analytic"],
-                    "timesteps": {t["algo"]: t["timesteps"] for t in learned}}
-        assert as_swept == _recorded(summary)
+        assert _as_swept(sw, env_id) == _recorded_summary(sw, env_id)
         residual = sw.entries[(sw.algos[0], env_id)]["env_kwargs"]["residual"]
         for ch in ("stiffness_scale", "posture_scale"):
             assert residual[ch] == (0.0 if ch == channel else base[env_id]["env_kwargs"]["residual"][ch])
@@ -195,13 +203,7 @@ def test_contribution_pairs_differ_only_in_the_stiffness_channel(full, ablation,
     assert sws[0].episodes == sws[1].episodes and sws[0].timesteps == sws[1].timesteps
     for sw in sws:
         for env_id in sw.env_ids:
-            summary = json.loads((ROOT / sw.out / env_id.split("/")[1].rsplit("-v", 1)[0] / "summary.json").read_text())
-            trials = [t for t in sw.trials() if t["env_id"] == env_id]
-            learned = [t for t in trials if t["kind"] == "learned"]
-            assert _recorded(summary) == {
-                "task": env_id, "seeds": sorted({t["seed"] for t in learned}), "episodes": sw.episodes,
-                "stiffness": [t["stiffness"] for t in trials if t["kind"] == "analytic"],
-                "timesteps": {t["algo"]: t["timesteps"] for t in learned}}
+            assert _as_swept(sw, env_id) == _recorded_summary(sw, env_id)
     for env_id in sws[0].env_ids:
         a, b = (sw.entries[("ppo", env_id)] for sw in sws)
         ra, rb = a["env_kwargs"]["residual"], b["env_kwargs"]["residual"]

@@ -302,10 +302,11 @@ def table(track: str, rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def build(path: str | Path) -> tuple[dict, list[dict], str]:
+def build(path: str | Path, loaded: tuple[dict, list[Run]] | None = None) -> tuple[dict, list[dict], str]:
+    """(track file, table rows, table text); ``loaded``: the file as `load_track` already read it."""
     from vswrist_gym.agents.aggregate import AggregateError, load_headroom
 
-    doc, runs = load_track(path)
+    doc, runs = loaded or load_track(path)
     try:
         headroom = load_headroom(doc["headroom"])
     except AggregateError as exc:
@@ -322,11 +323,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dry-run", action="store_true", help="with --run: print the commands it would run, run none")
     args = p.parse_args(argv)
     try:
-        doc, runs = load_track(args.track)
+        loaded = load_track(args.track)
         if args.run:
             from vswrist_gym.cli import main as vswrist
 
-            for what, sub in missing(runs):
+            for what, sub in missing(loaded[1]):
                 print(f"vswrist track: {what}", flush=True)
                 if not args.dry_run and vswrist(sub) != 0:
                     print(f"vswrist track: error: `{what}` failed; fix it and run again (finished runs are kept)",
@@ -334,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
                     return 1
             if args.dry_run:
                 return 0
-        doc, rows, text = build(args.track)
+        doc, rows, text = build(args.track, loaded)
     except (ConfigError, ValueError) as exc:
         print(f"vswrist track: error: {exc}", file=sys.stderr)
         return 2
