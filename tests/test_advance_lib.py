@@ -69,3 +69,30 @@ def test_a_mujoco_error_is_reported_for_its_world_and_the_others_step():
         pool.close()
     assert status.tolist() == [advance_lib.MUJOCO_ERROR, advance_lib.OK]
     assert datas[1].time == pytest.approx(10 * good.opt.timestep)
+
+
+def test_the_pool_runs_only_released_chunks_and_leaves_kept_ones():
+    """``submit(..., released=1)`` lets one chunk run; ``run_one(keep)`` claims none while at most ``keep`` are
+    left unclaimed; ``release()`` lets the rest run; ``wait()`` waits for every released chunk."""
+    good = mujoco.MjModel.from_xml_string(_crowded(1_000_000))
+    datas = [mujoco.MjData(good) for _ in range(3)]
+    peaks = [np.ones(1) for _ in range(3)]
+    h = _table(good, datas, peaks)
+    status = np.full(3, -1, dtype=np.int32)
+    theta, ctrl_idx = np.full((3, 4), 0.5), np.zeros(4, dtype=np.int32)
+    bounds = np.array([0, 1, 2, 3], dtype=np.int32)
+    pool = advance_lib.Pool(LIB, 1)
+    try:
+        pool.submit(h, np.arange(3, dtype=np.int32), theta, ctrl_idx, 2, 0, status, None, bounds, released=1)
+        pool.wait()
+        assert pool.ready().tolist() == [True, False, False]
+        assert status.tolist() == [advance_lib.OK, -1, -1] and datas[1].time == 0.0
+        assert pool.run_one() == -1  # chunks 1 and 2 are not released
+        pool.release()
+        assert pool.run_one(keep=1) in (-1, 1, 2)  # the pool thread may have claimed some already
+        assert pool.run_one(keep=2) == -1  # at most two are left unclaimed now
+        pool.wait()
+        assert pool.ready().all() and status.tolist() == [advance_lib.OK] * 3
+        assert all(d.time == pytest.approx(2 * good.opt.timestep) for d in datas)
+    finally:
+        pool.close()

@@ -448,3 +448,40 @@ def test_threads_and_chunks_give_the_one_thread_numbers(env_id, mode):
     assert two.unwrapped.threads == 2
     out = _step_twins(two, one, seed=11, rng_seed=3, diverge=(5, 7))
     assert out[2][5]  # the diverged world ended its episode
+
+
+def test_many_chunks_on_two_threads_give_the_one_thread_numbers():
+    """32 worlds on 2 threads: 8 chunks of 4. The first chunk begins world by world (the single env's phase)
+    and steps while the other 28 begin over arrays; the caller steps chunks, keeps the last for the pool
+    thread, and finishes the rest in few calls, whose small groups compute the ``stiffness`` term world by
+    world: against one thread, where every phase is one array call over the 32."""
+    cfg = {"episode_s": 0.2}
+    one, two = (make_batch("VSWrist/LoadHold-v0", n=32, config=cfg, threads=t, array_step=True) for t in (1, 2))
+    assert "stiffness" in two.unwrapped.envs[0].obs_slices
+    out = _step_twins(two, one, seed=5, rng_seed=8, diverge=(30, 4), steps=16)
+    assert out[2][30]
+
+
+def test_a_task_error_after_the_first_chunks_stepped_needs_a_reset():
+    """On threads the first chunk's physics starts before the other worlds' ``_begin``: should a task hook
+    raise there, the batch refuses to step on from that half-stepped state until it is reset."""
+    from gymnasium.error import ResetNeeded
+
+    venv = make_batch("VSWrist/Drill-v0", n=16, threads=2, array_step=True)
+    venv.reset(seed=0)
+    world = venv.unwrapped.envs[12]  # in a later chunk
+
+    def broken(t):
+        raise RuntimeError("a bug in a task hook")
+
+    world._before_physics = broken
+    acts = np.zeros(venv.action_space.shape)
+    with pytest.raises(RuntimeError, match="a bug in a task hook"):
+        venv.step(acts)
+    with pytest.raises(ResetNeeded):
+        venv.step(acts)
+    del world._before_physics
+    venv.reset(seed=0)
+    obs, rew, term, trunc, info = venv.step(acts)
+    assert np.isfinite(obs).all() and np.isfinite(rew).all()
+    venv.close()

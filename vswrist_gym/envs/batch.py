@@ -13,9 +13,9 @@ works per world). One ``step`` of the batch:
 4. the physics of all worlds: one control period each, through the compiled advance (``model.advance_lib``:
    per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
    ``threads`` threads, up to ``CHUNKS_PER_THREAD`` chunks per thread (of at least ``MIN_CHUNK_WORLDS`` worlds)
-   are stepped by the library's ``threads - 1`` threads and by the calling thread, which computes step 5 for
-   the chunks already done whenever there are some, and otherwise steps the next chunk: the Python of some
-   worlds runs beside the physics of others.
+   are stepped by the library's ``threads - 1`` threads and by the calling thread: step 3 of the other chunks
+   runs beside the first chunks' physics, and step 5 of most chunks beside the last ones' (``_native_step``),
+   so the Python of some worlds runs beside the physics of others.
    The compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and Polish's and
    Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable state (theirs lives in each
    MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds advance in
@@ -64,9 +64,14 @@ from .rewards import wrap_angle
 from .shared import PeriodMeanForce
 
 ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
+# below this many worlds, ``_finish`` computes the ``stiffness`` observation term world by world: the array
+# kinematics (``AnalyticController.posture_kinematics_batch``) cost about 100 us per call whatever the count,
+# the single env's term about 9 us per world (dev machine, 2026-12-03)
+SCALAR_STIFFNESS_BELOW = 12
 # chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
-# MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and let the Python of more worlds run beside
-# the physics; fewer keep the fixed cost of the ``_finish`` calls (one per group of done chunks) low
+# MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and shorten the last chunk, whose
+# ``_finish`` no physics overlaps; fewer make the first chunk, whose ``_begin`` no physics overlaps, longer to
+# compute beside
 CHUNKS_PER_THREAD = 4
 MIN_CHUNK_WORLDS = 4
 # the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
@@ -317,25 +322,36 @@ class VSWristVectorEnv(VectorEnv):
             else:
                 raise mujoco.FatalError(f"env {i}: MuJoCo raised an error inside this world's physics step")
 
-    def _native_step(self, worlds: list, idx: list, A: np.ndarray | None, theta: np.ndarray | None,
-                     per_world: bool, started: dict | None = None, meanwhile=None):
-        """The physics of the live worlds through the compiled advance. On one thread: one call. On ``threads``
-        threads: up to ``CHUNKS_PER_THREAD`` x threads chunks of worlds, stepped by the library's ``threads - 1``
-        threads and by this one, which, whenever chunks are done, first computes their rewards and
-        observations (the array step's ``_finish``, over all the chunks done by then) and otherwise steps the
-        next chunk itself: every core keeps busy and the Python runs beside the physics. Each world's numbers
-        depend on that world only, so the chunks' results are joined in world order.
+    def _native_step(self, worlds: list, idx: list, acts: np.ndarray, per_world: bool, started: dict | None = None,
+                     meanwhile=None):
+        """The array step's ``_begin`` and the physics of the live worlds through the compiled advance
+        (``acts``: their checked actions; with ``per_world`` the worlds have begun their step already). On one
+        thread: ``_begin``, one call, ``_finish``. On ``threads`` threads: up to ``CHUNKS_PER_THREAD`` x threads
+        chunks of worlds, stepped by the library's ``threads - 1`` threads and by this one:
+
+        * ``_begin`` of the first chunk of each pool thread, which starts it; then, while those chunks' physics
+          runs, ``_begin`` of the others, which are then released to the pool (``advance_lib.Pool.release``):
+          the Python before the physics is one chunk's, not the batch's. Should that second ``_begin`` raise (a
+          task hook's bug: the actions were checked before), the first chunks have stepped and the others have
+          not, so the batch then needs a ``reset()`` (``ResetNeeded`` otherwise) rather than going on from a
+          half-stepped state;
+        * this thread steps chunks while more than one per pool thread is left to claim, and only then
+          computes the rewards and observations (``_finish``) of the chunks done, in one call while the pool
+          steps the last ones, then of those: each ``_finish`` call has a fixed cost (its array calls) that many
+          small calls would pay many times over.
+
+        Each world's numbers depend on that world only, so the chunks' results are joined in world order.
         Returns ``_finish``'s results for the array step, None world by world (the caller finishes each).
         ``started``: with SAME_STEP autoresets, the resets begun (``_start_resets``) of the worlds a finished
         chunk ended, whose settling then runs beside the physics still to come. ``meanwhile()``: Python to run
         while the physics starts (the worlds that reset at this step)."""
         L = len(idx)
         widx = np.asarray(idx, dtype=np.int32)
-        TH = self._motor_matrix(worlds, idx, theta)
         status = np.zeros(L, dtype=np.int32)
         seconds = None if self.physics_seconds is None else np.zeros(L)
         lib = self._advance_fn
         parts: list = []  # (positions in idx, _finish's results for those worlds)
+        A = None  # the clipped actions, once ``_begin`` has run for every world
 
         def finish(pos: list) -> None:
             ws = [worlds[p] for p in pos]
@@ -347,8 +363,17 @@ class VSWristVectorEnv(VectorEnv):
             if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
                 self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
 
+        def begin(lo: int, hi: int) -> tuple[np.ndarray | None, np.ndarray]:
+            """``_begin`` of live worlds lo..hi-1: their clipped actions and motor references (hi - lo, 4)."""
+            ws, ids = worlds[lo:hi], idx[lo:hi]
+            if per_world:
+                return None, self._motor_matrix(ws, ids, None)
+            a, theta = self._begin(ws, acts[lo:hi])
+            return a, self._motor_matrix(ws, ids, theta)
+
         k = min(CHUNKS_PER_THREAD * self.threads, L // MIN_CHUNK_WORLDS)
         if self.threads == 1 or k < 2:
+            A, TH = begin(0, L)
             if meanwhile is not None:
                 meanwhile()
             advance_lib.advance(lib, self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status,
@@ -356,21 +381,38 @@ class VSWristVectorEnv(VectorEnv):
             finish(list(range(L)))
         else:
             bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
+            head = int(bounds[self.threads - 1])  # one chunk for each pool thread
+            A1, TH1 = begin(0, head)
+            TH = np.empty((L, 4))
+            TH[:head] = TH1
             pool = self._cpool
             if pool is None or pool.pid != os.getpid():  # made here: threads do not survive a fork
                 pool = self._cpool = advance_lib.Pool(lib, self.threads - 1)
-            pool.submit(self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status, seconds, bounds)
+            pool.submit(self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status, seconds, bounds,
+                        released=self.threads - 1)
             todo = np.ones(k, dtype=bool)
             try:
                 if meanwhile is not None:
                     meanwhile()
+                try:
+                    A2, TH[head:] = begin(head, L)
+                except BaseException:
+                    self._started = False  # the first chunks stepped, the others did not: reset() first
+                    raise
+                A = None if per_world else np.concatenate([A1, A2])
+                pool.release()
+                # the last unclaimed chunk of each pool thread stays for it, so that the first _finish (most of
+                # the worlds) runs beside physics
+                keep = self.threads - 1
                 while todo.any():
+                    if pool.run_one(keep) >= 0:  # step chunks while more than `keep` are left to claim
+                        continue
                     ready = pool.ready() & todo
                     if ready.any():
                         chunks = np.flatnonzero(ready).tolist()
                         todo[chunks] = False
                         finish([p for c in chunks for p in range(int(bounds[c]), int(bounds[c + 1]))])
-                    elif pool.run_one() < 0:  # every chunk is claimed: wait for the first unfinished one
+                    elif pool.run_one() < 0:  # nothing done yet: step a kept chunk, else wait for one
                         pool.wait(int(np.flatnonzero(todo)[0]))
             finally:
                 pool.wait()  # no thread touches a world after we return
@@ -476,7 +518,8 @@ class VSWristVectorEnv(VectorEnv):
         whole info dict} (worlds reset in this step), ``extras`` = {world: more keys} (a divergence's message)."""
         acts = self.check_actions(actions)  # before anything changes: a bad batch steps no world
         if not self._started:
-            raise ResetNeeded("step() called before the first reset(); call reset() to start the episodes")
+            raise ResetNeeded("step() called before the first reset() (or after a step raised inside a task's "
+                              "code); call reset() to start the episodes")
         envs = self.envs
         n = self.num_envs
         resetting = self._autoreset
@@ -495,10 +538,12 @@ class VSWristVectorEnv(VectorEnv):
         if per_world:  # the single env's phases, world by world
             for e, i in zip(worlds, idx):
                 e._begin_step(acts[i])
-        A, theta = self._begin(worlds, acts[idx]) if worlds and not per_world else (None, None)
+        A = theta = None
+        if worlds and not per_world and not native:
+            A, theta = self._begin(worlds, acts[idx])
         finished = None
-        if native:  # the resets begin while the physics runs
-            finished = self._native_step(worlds, idx, A, theta, per_world, started if same_step else None,
+        if native:  # the array step's _begin, then the physics, beside which the resets begin
+            finished = self._native_step(worlds, idx, acts[idx], per_world, started if same_step else None,
                                          lambda: self._start_resets(reset_now, started))
         else:
             self._physics(live)
@@ -550,6 +595,10 @@ class VSWristVectorEnv(VectorEnv):
         motor references (L, 4) where the controller computed them over arrays (else None)."""
         A = np.maximum(acts, -1.0)
         np.minimum(A, 1.0, out=A)
+        if len(worlds) < ARRAY_MIN_WORLDS:  # few worlds (a first chunk): the array calls' fixed cost outweighs
+            for e, a in zip(worlds, acts):  # the single env's phase, world by world (the same numbers)
+                e._begin_step(a)
+            return A, None
         first = worlds[0]
         mode = self._mode
         if mode in ("posture_stiffness", "residual"):
@@ -708,7 +757,10 @@ class VSWristVectorEnv(VectorEnv):
             elif name == "spring_torques":
                 raw[:, a:b] = spring_torque(D, law)
             elif name == "stiffness":
-                raw[:, a:b] = self._coupler_stiffness(first, P, D, law)
+                if L < SCALAR_STIFFNESS_BELOW:  # the single env's term, world by world (the same numbers)
+                    raw[:, a:b] = [e._obs_stiffness() for e in worlds]
+                else:
+                    raw[:, a:b] = self._coupler_stiffness(first, P, D, law)
             elif name == "lam":
                 raw[:, a] = lam
             elif name == "prev_action":

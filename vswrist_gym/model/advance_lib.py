@@ -127,10 +127,13 @@ extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int cou
    order of c, without Python. The caller submits, then works on the finished chunks (their rewards and
    observations, in Python) and, when none is finished, steps an unclaimed chunk itself (run_one) or waits:
    every call is a ctypes call, so the caller holds no GIL meanwhile, and caller + pool threads = the cores.
-   One job at a time: the caller waits for all chunks before the next submit. */
+   Only chunks below ``released`` may be claimed: the caller can submit the first chunks while it still
+   computes the motor references of the others, then release those (the lock orders its writes to theta
+   before any thread's reads). One job at a time: the caller waits for all released chunks before the next
+   submit. */
 struct Job {
   const uint64_t* h; const int32_t* worlds; const double* theta; const int32_t* ctrl_idx;
-  int nstep, sync; int32_t* status; double* seconds; const int32_t* bounds; int nchunks;
+  int nstep, sync; int32_t* status; double* seconds; const int32_t* bounds; int nchunks, released;
 };
 
 struct Pool {
@@ -158,7 +161,7 @@ struct Pool {
   void run() {
     std::unique_lock<std::mutex> lk(mu);
     for (;;) {
-      work.wait(lk, [&] { return stop || next < job.nchunks; });
+      work.wait(lk, [&] { return stop || next < job.released; });
       if (stop) return;
       run_chunk(lk, next++);
     }
@@ -184,11 +187,12 @@ extern "C" void vswrist_pool_free(void* pool) {
 
 extern "C" void vswrist_pool_submit(void* pool, const uint64_t* h, const int32_t* worlds, const double* theta,
                                     const int32_t* ctrl_idx, int nstep, int sync, int32_t* status,
-                                    double* seconds, const int32_t* bounds, int nchunks) {
+                                    double* seconds, const int32_t* bounds, int nchunks, int released) {
   Pool* p = (Pool*)pool;
   {
     std::lock_guard<std::mutex> lk(p->mu);
-    p->job = Job{h, worlds, theta, ctrl_idx, nstep, sync, status, seconds, bounds, nchunks};
+    p->job = Job{h, worlds, theta, ctrl_idx, nstep, sync, status, seconds, bounds, nchunks,
+                 released < nchunks ? released : nchunks};
     p->next = 0;
     p->ndone = 0;
     p->done.assign(nchunks, 0);
@@ -196,11 +200,23 @@ extern "C" void vswrist_pool_submit(void* pool, const uint64_t* h, const int32_t
   p->work.notify_all();
 }
 
-/* Claims the next unclaimed chunk and runs it on the calling thread; returns it, or -1 if none is left. */
-extern "C" int vswrist_pool_run_one(void* pool) {
+/* Lets chunks below upto be claimed. */
+extern "C" void vswrist_pool_release(void* pool, int upto) {
+  Pool* p = (Pool*)pool;
+  {
+    std::lock_guard<std::mutex> lk(p->mu);
+    if (upto > p->job.nchunks) upto = p->job.nchunks;
+    if (upto > p->job.released) p->job.released = upto;
+  }
+  p->work.notify_all();
+}
+
+/* Claims the next unclaimed released chunk and runs it on the calling thread, unless no more than ``keep``
+   are left unclaimed (those stay for the pool's threads); returns it, or -1. */
+extern "C" int vswrist_pool_run_one(void* pool, int keep) {
   Pool* p = (Pool*)pool;
   std::unique_lock<std::mutex> lk(p->mu);
-  if (p->next >= p->job.nchunks) return -1;
+  if (p->next >= p->job.released - (keep > 0 ? keep : 0)) return -1;
   int c = p->next++;
   p->run_chunk(lk, c);
   return c;
@@ -214,12 +230,12 @@ extern "C" int vswrist_pool_ready(void* pool, char* out) {
   return p->ndone;
 }
 
-/* Blocks until chunk c is done (c < 0: every chunk). */
+/* Blocks until chunk c is done (c < 0: every released chunk; one never released is never run). */
 extern "C" void vswrist_pool_wait(void* pool, int c) {
   Pool* p = (Pool*)pool;
   std::unique_lock<std::mutex> lk(p->mu);
   if (c < 0)
-    p->done_cv.wait(lk, [&] { return p->ndone == p->job.nchunks; });
+    p->done_cv.wait(lk, [&] { return p->ndone == p->job.released; });
   else
     p->done_cv.wait(lk, [&] { return p->done[c] != 0; });
 }
@@ -256,11 +272,13 @@ def load():
                 lib.vswrist_pool_new.restype = p
                 lib.vswrist_pool_free.argtypes = [p]
                 lib.vswrist_pool_free.restype = None
-                lib.vswrist_pool_submit.argtypes = [p, p, p, p, p, i, i, p, p, p, i]
+                lib.vswrist_pool_submit.argtypes = [p, p, p, p, p, i, i, p, p, p, i, i]
                 lib.vswrist_pool_submit.restype = None
+                lib.vswrist_pool_release.argtypes = [p, i]
+                lib.vswrist_pool_release.restype = None
                 lib.vswrist_pool_wait.argtypes = [p, i]
                 lib.vswrist_pool_wait.restype = None
-                lib.vswrist_pool_run_one.argtypes = [p]
+                lib.vswrist_pool_run_one.argtypes = [p, i]
                 lib.vswrist_pool_run_one.restype = i
                 lib.vswrist_pool_ready.argtypes = [p, p]
                 lib.vswrist_pool_ready.restype = i
@@ -283,9 +301,9 @@ def advance(lib, handles: np.ndarray, worlds: np.ndarray, theta: np.ndarray, ctr
 
 class Pool:
     """``threads`` C++ threads that step a batch's chunks of worlds (see the source). ``submit`` returns at
-    once; ``run_one()`` steps the next unclaimed chunk on the calling thread (its index, or -1 if none is
-    left); ``ready()`` gives the chunks' done flags; ``wait(c)`` blocks until chunk c is done, ``wait()`` until
-    all are. The arrays given to ``submit`` are kept referenced until the next submit, so they outlive the
+    once; ``run_one(keep)`` steps the next unclaimed released chunk on the calling thread (its index), unless
+    at most ``keep`` are left unclaimed (-1); ``ready()`` gives the chunks' done flags; ``wait(c)`` blocks until chunk c is done, ``wait()``
+    until all released ones are. The arrays given to ``submit`` are kept referenced until the next submit, so they outlive the
     threads' use of them."""
 
     def __init__(self, lib, threads: int):
@@ -293,17 +311,25 @@ class Pool:
         self._p = lib.vswrist_pool_new(threads)
         self._keep: tuple = ()
 
-    def submit(self, handles, worlds, theta, ctrl_idx, nstep, sync, status, step_seconds, bounds) -> None:
+    def submit(self, handles, worlds, theta, ctrl_idx, nstep, sync, status, step_seconds, bounds,
+               released: int | None = None) -> None:
+        """``released``: how many of the first chunks may run now (default all); ``release`` lets the others
+        run once their rows of ``theta`` are written."""
         self._keep = (handles, worlds, theta, ctrl_idx, status, step_seconds, bounds)
+        k = len(bounds) - 1
         self._lib.vswrist_pool_submit(self._p, handles.ctypes.data, worlds.ctypes.data, theta.ctypes.data,
                                       ctrl_idx.ctypes.data, nstep, sync, status.ctypes.data, _ptr(step_seconds),
-                                      bounds.ctypes.data, len(bounds) - 1)
+                                      bounds.ctypes.data, k, k if released is None else int(released))
+
+    def release(self, upto: int | None = None) -> None:
+        """Lets chunks below ``upto`` (default: all) be claimed."""
+        self._lib.vswrist_pool_release(self._p, len(self._keep[-1]) - 1 if upto is None else int(upto))
 
     def wait(self, chunk: int = -1) -> None:
         self._lib.vswrist_pool_wait(self._p, chunk)
 
-    def run_one(self) -> int:
-        return self._lib.vswrist_pool_run_one(self._p)
+    def run_one(self, keep: int = 0) -> int:
+        return self._lib.vswrist_pool_run_one(self._p, keep)
 
     def ready(self) -> np.ndarray:
         flags = np.zeros(len(self._keep[-1]) - 1, dtype=np.int8)
