@@ -1,6 +1,6 @@
-"""The PPO stiffness-track search in one table per task (results/README.md section 9), from the records that
-`vswrist sweep vswrist_gym/configs/sweeps/search_ppo_stiffness.yaml` wrote (copied to
-results/tuned_stiffness/search/<Task>.json):
+"""A PPO search's samples in one table per task, from the records that `vswrist sweep` wrote in search mode
+(copied to FOLDER/<Task>.json): results/README.md section 9 (`search_ppo_stiffness.yaml`, records in
+results/tuned_stiffness/search) and section 7b (`search_ppo_hammer.yaml`, in results/hammer_stiffness_tuned/search):
 
     python results/search_table.py [results/tuned_stiffness/search]
 
@@ -24,17 +24,27 @@ def main(argv=None) -> int:
         full = max(t["timesteps"] for t in trials)
         print(f"\n{path.stem}: {len(trials)} samples, {sum(t['timesteps'] >= full for t in trials)} reached "
               f"{full:,} steps\n")
-        print("| eval return | steps | learning_rate | ent_coef | gamma | n_epochs | frame_stack | log_std_init |")
-        print("|---|---|---|---|---|---|---|---|")
+        keys = list(trials[0]["config"])  # the searched keys, in the search file's order
+        names = [k.split("__")[-1] if k != "policy_kwargs" else "log_std_init" for k in keys]
+        print("| eval return | steps | " + " | ".join(names) + " |")
+        print("|---|---|" + "---|" * len(keys))
         for t in trials:
             c = t["config"]
-            log_std = re.search(r"log_std_init=(-?[\d.]+)", c["policy_kwargs"]).group(1)
-            print(f"| {t['eval_return']:.1f} | {t['timesteps']:,} | {c['learning_rate']:.2g} | {c['ent_coef']} | "
-                  f"{c['gamma']} | {c['n_epochs']} | {c['frame_stack']} | {log_std} |")
-        for k in (1, 4):
-            at_full = [t["eval_return"] for t in trials if t["config"]["frame_stack"] == k and t["timesteps"] >= full]
-            print(f"\nframe_stack {k}: {sum(t['config']['frame_stack'] == k for t in trials)} samples, "
-                  f"{len(at_full)} at the full budget" + (f", best {max(at_full):.1f}" if at_full else ""))
+            cells = []
+            for k in keys:
+                v = c[k]
+                if k == "policy_kwargs":
+                    v = re.search(r"log_std_init=(-?[\d.]+)", v).group(1)
+                elif k == "learning_rate":
+                    v = f"{v:.2g}"
+                cells.append(str(v))
+            print(f"| {t['eval_return']:.1f} | {t['timesteps']:,} | " + " | ".join(cells) + " |")
+        if "frame_stack" in keys:
+            for k in (1, 4):
+                at_full = [t["eval_return"] for t in trials
+                           if t["config"]["frame_stack"] == k and t["timesteps"] >= full]
+                print(f"\nframe_stack {k}: {sum(t['config']['frame_stack'] == k for t in trials)} samples, "
+                      f"{len(at_full)} at the full budget" + (f", best {max(at_full):.1f}" if at_full else ""))
     return 0
 
 
