@@ -1,0 +1,59 @@
+"""How PPO's training time splits between collecting rollouts and the update, on LoadHold with the packaged entry
+(16 worlds in one process, 64 steps per rollout, 10 epochs of 128-sample minibatches, one torch thread):
+
+    python results/ppo_update_share.py [--timesteps 16384] [--torch-threads 1]
+
+Times SB3's own ``collect_rollouts`` (environment steps, policy forward, buffer) and ``train`` (the update) with
+wall clocks around them. Why: more worlds per step amortise the first but not the second, which bounds the
+training speed-up that batching can give (README, Batched speed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+import torch.nn as nn
+from stable_baselines3 import PPO
+from stable_baselines3.common.utils import configure_logger
+from stable_baselines3.common.vec_env import VecNormalize
+
+from vswrist_gym.agents.vec_env import BatchVecEnv
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--timesteps", type=int, default=16384)
+    ap.add_argument("--torch-threads", type=int, default=1)
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.torch_threads)
+    venv = VecNormalize(BatchVecEnv("VSWrist/LoadHold-v0", 16, env_kwargs={"action_mode": "residual"}, threads=2))
+    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=128, n_epochs=10, gamma=0.95, device="cpu", seed=0,
+                policy_kwargs=dict(log_std_init=-1.5, net_arch=dict(pi=[64, 64], vf=[64, 64]),
+                                   activation_fn=nn.Tanh), verbose=0)
+    model._logger = configure_logger(0, None, "", False)
+    spent = {"collect_rollouts": 0.0, "train": 0.0}
+    for name in spent:
+        fn = getattr(model, name)
+
+        def timed(*a, _fn=fn, _name=name, **k):
+            t0 = time.perf_counter()
+            try:
+                return _fn(*a, **k)
+            finally:
+                spent[_name] += time.perf_counter() - t0
+
+        setattr(model, name, timed)
+    t0 = time.perf_counter()
+    model.learn(args.timesteps)
+    wall = time.perf_counter() - t0
+    print(f"{args.timesteps} steps in {wall:.2f} s ({args.timesteps / wall:.0f} steps/s): rollouts "
+          f"{spent['collect_rollouts']:.2f} s, update {spent['train']:.2f} s "
+          f"({100 * spent['train'] / wall:.0f} % of the time)")
+    venv.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
