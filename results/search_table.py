@@ -1,6 +1,7 @@
-"""A PPO search's samples in one table per task, from the records that `vswrist sweep` wrote in search mode
-(copied to FOLDER/<Task>.json): results/README.md section 9 (`search_ppo_stiffness.yaml`, records in
-results/tuned_stiffness/search) and section 7b (`search_ppo_hammer.yaml`, in results/hammer_stiffness_tuned/search):
+"""A search's samples in one table per task, from the records that `vswrist sweep` wrote in search mode (copied
+to FOLDER/<Task>.json): results/README.md section 9 (`search_ppo_stiffness.yaml`, records in
+results/tuned_stiffness/search), section 7b (`search_ppo_hammer.yaml`, in results/hammer_stiffness_tuned/search)
+and section 5d (`search_sac_hammer.yaml`, SAC, in results/sac_hammer_searched/search):
 
     python results/search_table.py [results/tuned_stiffness/search]
 
