@@ -39,7 +39,7 @@ def _registered_vswrist() -> list[str]:
 
 
 # the packaged files besides configs/<algo>.yaml whose entries are run for committed tables
-EXTRA_FILES = {"sac": ["sac_tuned.yaml", "sac_stiffness.yaml"],
+EXTRA_FILES = {"sac": ["sac_tuned.yaml", "sac_stiffness.yaml", "sac_hammer_tuned.yaml"],
                "ppo": ["ppo_stiffness_tuned.yaml", "ppo_hammer_tuned.yaml"]}
 
 
