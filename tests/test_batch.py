@@ -471,17 +471,55 @@ def test_a_task_error_after_the_first_chunks_stepped_needs_a_reset():
     venv.reset(seed=0)
     world = venv.unwrapped.envs[12]  # in a later chunk
 
-    def broken(t):
-        raise RuntimeError("a bug in a task hook")
+    class Broken:  # an episode value that Drill's load hook (over arrays of worlds) fails on
+        def __le__(self, other):
+            raise RuntimeError("a bug in a task hook")
 
-    world._before_physics = broken
+        __ge__ = __le__
+
+    world._t_on = Broken()
     acts = np.zeros(venv.action_space.shape)
     with pytest.raises(RuntimeError, match="a bug in a task hook"):
         venv.step(acts)
     with pytest.raises(ResetNeeded):
         venv.step(acts)
-    del world._before_physics
-    venv.reset(seed=0)
+    venv.reset(seed=0)  # draws the episode anew
     obs, rew, term, trunc, info = venv.step(acts)
     assert np.isfinite(obs).all() and np.isfinite(rew).all()
     venv.close()
+
+
+def test_apply_wrenches_checks_the_rows_once():
+    """The batch's wrench writer (Drill's and LoadHold's loads over arrays of worlds) refuses a non-finite or
+    wrongly shaped array by name, and writes row k to world k."""
+    venv = make_batch("VSWrist/LoadHold-v0", n=2)
+    venv.reset(seed=0)
+    sims = [e.sim for e in venv.unwrapped.envs]
+    from vswrist_gym.sim import WristSim
+
+    with pytest.raises(ValueError, match="wrenches must be finite"):
+        WristSim.apply_wrenches(sims, np.full((2, 6), np.nan))
+    with pytest.raises(ValueError, match="one .* row of 6"):
+        WristSim.apply_wrenches(sims, np.zeros((3, 6)))
+    W = np.arange(12.0).reshape(2, 6)
+    WristSim.apply_wrenches(sims, W)
+    for s, row in zip(sims, W):
+        np.testing.assert_array_equal(s.data.xfrc_applied[s.hand_id], row)
+    venv.close()
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_reference_over_an_array_of_times_is_the_reference_at_each(env_id):
+    """Tasks write ``_reference`` over arrays (a reset evaluates the episode's control instants in one call):
+    each row at time t_k equals the reference asked for t_k alone, and a step's target is its row."""
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=4)
+    ts = np.arange(env.episode_steps + 1) * env.ctrl_dt
+    table = env._reference(ts)
+    assert table.shape == (len(ts), 3)
+    for k in (0, 1, len(ts) // 3, len(ts) // 2, len(ts) - 1):
+        np.testing.assert_array_equal(table[k], env._reference(float(ts[k])))
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    np.testing.assert_array_equal(env._target, table[3])
+    env.close()

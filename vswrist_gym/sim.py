@@ -204,6 +204,17 @@ class WristSim:
             raise ValueError(f"force and torque must be finite 3-vectors (N, N m), got {force!r}, {torque!r}")
         self.data.xfrc_applied[self.hand_id] = w
 
+    @staticmethod
+    def apply_wrenches(sims: list, wrenches: np.ndarray) -> None:
+        """``apply_wrench`` of many simulators (a batch's worlds): row k of ``wrenches`` (N, 6), (force N, torque
+        N m), to ``sims[k]``; checked once over the array."""
+        w = np.asarray(wrenches, dtype=float)
+        if w.shape != (len(sims), 6) or not np.isfinite(w).all():
+            raise ValueError(f"wrenches must be finite, one (force, torque) row of 6 per simulator "
+                             f"({len(sims)}), got shape {w.shape}")
+        for s, row in zip(sims, w):
+            s._xfrc_hand[:] = row
+
     def step(self, duration_s: float, restart_peak: bool = True) -> None:
         """Advance the physics by ``duration_s`` (a whole number of substeps of ``self.timestep``).
         ``restart_peak=False`` extends the previous step's ``loop_closure_peak`` (one period in two calls)."""

@@ -81,8 +81,11 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
       ``_add_tool_geom``, ``_add_touch_sensor``, ``add_mocap_box_body``); ``_scene_ids()``: look up ids after;
     * ``_task_reset(rng) -> (u (2,), ps, stiffness command)``: sample the episode; ``_after_reset()``: place
       objects once the wrist stands at its initial posture (``tool_point``);
-    * ``_reference(t) -> (3,)``: the posture reference (RUD, FE, PS) at time t (s);
-    * ``_before_physics(t)``: external loads for the coming period (``self.sim.apply_wrench``);
+    * ``_reference(t) -> (..., 3)``: the posture reference (RUD, FE, PS) at time t (s), a number or an array of
+      times (written over arrays: each reset evaluates the episode's control instants in one call);
+    * ``_before_physics(t)``: external loads for the coming period (``self.sim.apply_wrench``), or, over arrays
+      of worlds, the class method ``_before_physics_worlds(worlds, t)`` (``WristSim.apply_wrenches``; a batch
+      then calls it once, the single env with a batch of one: Drill, LoadHold);
     * ``_contact_force() -> float`` (N, after a step), ``_tracking_error(err)`` (the part of the error the
       tracking reward counts, indexing the last axis only: ``err[..., 1:]``; it gets (3,) or (N, 3)),
       ``_task_reward_terms(err) -> {name: unweighted value}``, ``_task_info() -> {name: number}`` (extra
@@ -290,7 +293,10 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
 
     def _reset_finish(self):
         self._after_reset()
-        self._target = self._reference(0.0)
+        # the episode's references at every control instant k ctrl_dt, in one array call (the same times as
+        # ``_step * ctrl_dt``): a step reads its row, in a batch as alone
+        self._references = self._reference(np.arange(self.episode_steps + 1) * self.ctrl_dt)
+        self._target = self._references[0]
         self._measure()
         self._closure = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
             self.sim.loop_closure_error()
@@ -359,7 +365,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
             self.sim.reset()
             self.sim.apply_wrench(np.zeros(3), np.zeros(3))
             self._measure()
-        self._target = self._reference(self._t)
+        self._target = self._references[self._step]
         self._peak_contact = max(self._peak_contact, self._contact)
         self._sum_contact_sq += self._contact * self._contact
 
@@ -410,7 +416,18 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         raise NotImplementedError
 
     def _before_physics(self, t: float) -> None:
-        """Apply external loads for the coming control period."""
+        """Apply external loads for the coming control period. A task that writes its loads over arrays of worlds
+        (``_before_physics_worlds``) leaves this to the base, which runs that for a batch of one."""
+        cls = type(self)
+        if cls._before_physics_worlds.__func__ is not VSWristEnv._before_physics_worlds.__func__:
+            cls._before_physics_worlds([self], np.array([t]))
+
+    @classmethod
+    def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
+        """``_before_physics`` of ``worlds`` (of this task) at their times ``t`` (N,), over arrays; the default
+        calls each world's ``_before_physics``."""
+        for e, tk in zip(worlds, t.tolist()):
+            e._before_physics(tk)
 
     def _advance_physics(self, duration: float, first: bool) -> None:
         """Advance the physics by ``duration`` within a control period (``first``: its first part, where the

@@ -9,7 +9,8 @@ works per world). One ``step`` of the batch:
    SAME_STEP, right after the step that ended them;
 3. before the physics: action clipping and maps, and the analytic controller (modes ``posture_stiffness`` and
    ``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics
-   and the ``motor`` mode world by world; then each task's ``_before_physics`` hook world by world;
+   and the ``motor`` mode world by world; then the task's loads, ``_before_physics_worlds`` (over arrays of
+   worlds where the task writes them so: Drill, LoadHold; else each world's ``_before_physics``);
 4. the physics of all worlds: one control period each, through the compiled advance (``model.advance_lib``:
    per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
    ``threads`` threads, up to ``CHUNKS_PER_THREAD`` chunks per thread (of at least ``MIN_CHUNK_WORLDS`` worlds)
@@ -25,7 +26,8 @@ works per world). One ``step`` of the batch:
    threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
    only contend for the GIL: the batch then steps serially;
 5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure: gathered
-   from the MjData into (N, .) arrays), its task hooks (``_contact_force``, ``_reference``,
+   from the MjData into (N, .) arrays, the tool wrench too), its reference (a row of the table its reset
+   computed: ``_reference`` is written over arrays of times), its task hooks (``_contact_force``,
    ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own
    generator, in the single env's order) run world by world; the measures' math, divergence checks, the common
    reward terms, the observation and the info (Gymnasium's vector info: arrays and ``_key`` masks) are computed
@@ -174,7 +176,8 @@ class VSWristVectorEnv(VectorEnv):
         # what the array step needs to know of the task (the same for every world)
         cls = type(first)
         self._mode = first.cfg["action_mode"]
-        self._hook_before = cls._before_physics is not VSWristEnv._before_physics
+        self._hook_before = (cls._before_physics is not VSWristEnv._before_physics
+                             or cls._before_physics_worlds.__func__ is not VSWristEnv._before_physics_worlds.__func__)
         self._hook_contact = cls._contact_force is not VSWristEnv._contact_force
         self._hook_reward = cls._task_reward_terms is not VSWristEnv._task_reward_terms
         self._hook_info = cls._task_info is not VSWristEnv._task_info
@@ -621,8 +624,7 @@ class VSWristVectorEnv(VectorEnv):
             for e, a in zip(worlds, A):
                 e._a, e._theta = a, e._motor_refs(a)
         if self._hook_before:
-            for e in worlds:
-                e._before_physics(e._t)
+            type(first)._before_physics_worlds(worlds, np.array([e._t for e in worlds]))
         return A, theta
 
     def _finish(self, worlds: list, A: np.ndarray):
@@ -671,7 +673,7 @@ class VSWristVectorEnv(VectorEnv):
         law = SpringLaw(K, d0)  # each world's own springs
         e3 = spring_energy(D, law)
         energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
-        T = np.array([e._reference(e._t) for e in worlds])
+        T = np.array([e._references[e._step] for e in worlds])
         err = wrap_angle(P - T)
 
         # world by world: the state the single env keeps, the task's reward terms, noise, simulator-read terms
@@ -699,10 +701,13 @@ class VSWristVectorEnv(VectorEnv):
                 e._draw_noise()
                 nz_rows.append(e._nz)
             for vals, (a, b, name) in zip(term_vals, world_terms):
-                vals.append(e.sim.tool_wrench() if name == "tool_wrench" else e._terms[name].fn())
+                if name != "tool_wrench":
+                    vals.append(e._terms[name].fn())
         NZ = np.array(nz_rows) if noise else None
         for vals, (a, b, name) in zip(term_vals, world_terms):
-            if b - a == 1:
+            if name == "tool_wrench":
+                raw[:, a:b] = self._read_tool_wrench(sims)
+            elif b - a == 1:
                 raw[:, a] = np.array(vals, dtype=float).reshape(L)
             else:
                 raw[:, a:b] = np.array(vals, dtype=float)
@@ -817,6 +822,16 @@ class VSWristVectorEnv(VectorEnv):
         P[:, 1] = [atan2(r3, r0) for r3, r0 in zip(X[:, 3].tolist(), X[:, 0].tolist())]
         P[:, 2] = Q[:, s0._qadr_ps]
         return P, Q[:, s0._qadr_q1] - Q[:, s0._qadr_m3], Q
+
+    @staticmethod
+    def _read_tool_wrench(sims: list) -> np.ndarray:
+        """``WristSim.tool_wrench`` of every world (N, 6): the tool's force/torque sensors rotated to the base."""
+        for s in sims:
+            if s._stale or s._light:
+                s._forward()
+        R = np.array([s._tool_R for s in sims])
+        FT = np.array([(s._tool_f, s._tool_t) for s in sims])  # (N, 2, 3)
+        return np.matmul(R[:, None], FT[:, :, :, None]).reshape(len(sims), 6)
 
     @staticmethod
     def _read_posture_rate(sims: list, P: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..sim import WristSim
 from .base import VSWristEnv
 from .shared import FINGER_END
 
@@ -67,26 +68,43 @@ class DrillEnv(VSWristEnv):
 
     ramp_s = 1.0  # s, the PS speed ramps up smoothly (constant acceleration) over this time
 
-    def _ps_travel(self, t: float) -> float:
+    def _ps_travel(self, t):
         r = self.ramp_s
-        return self._ps_speed * (0.5 * t * t / r if t < r else t - 0.5 * r)
+        return self._ps_speed * np.where(t < r, 0.5 * t * t / r, t - 0.5 * r)
 
-    def _reference(self, t: float) -> np.ndarray:
+    def _reference(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
         lo, hi = self.posture_map.lo[2], self.posture_map.hi[2]
-        ps = float(min(max(self._ps0 + self._ps_travel(t), lo), hi))  # = np.clip for a finite scalar
-        return np.array([self._u[0], self._u[1], ps])
+        ps = np.minimum(np.maximum(self._ps0 + self._ps_travel(t), lo), hi)
+        return np.stack([np.full_like(t, self._u[0]), np.full_like(t, self._u[1]), ps], axis=-1)
 
-    def _before_physics(self, t: float) -> None:
-        tc = t + 0.5 * self.ctrl_dt  # the wrench is held over the period: sample it at the period's middle
-        self._engaged = self._t_on <= tc < self._t_off
-        if not self._engaged:
-            self.sim.apply_wrench(np.zeros(3), np.zeros(3))
-            return
-        R = self.sim.coupler_pose()[:3, :3]
-        x = R[:, 0]
-        axis = R @ np.array([0.0, np.cos(self._axis_angle), np.sin(self._axis_angle)])
-        torque = self._amp * np.sin(2 * np.pi * self._freq * tc + self._phase) * axis
-        self.sim.apply_wrench(-self._thrust * x, torque)
+    @classmethod
+    def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
+        # the wrench is held over the period: sample it at the period's middle
+        tc = t + 0.5 * worlds[0].ctrl_dt
+        on = (np.array([e._t_on for e in worlds]) <= tc) & (tc < np.array([e._t_off for e in worlds]))
+        wrench = np.zeros((len(worlds), 6))
+        for e, engaged in zip(worlds, on.tolist()):
+            e._engaged = engaged
+        if on.any():
+            idx = np.flatnonzero(on)
+            wrench[idx] = cls._drill_wrench([worlds[k] for k in idx.tolist()], tc[idx])
+        WristSim.apply_wrenches([e.sim for e in worlds], wrench)
+
+    @staticmethod
+    def _drill_wrench(ws: list, tc: np.ndarray) -> np.ndarray:
+        """(thrust along -X_c, oscillating torque) (M, 6) on the engaged worlds ``ws`` at times ``tc``."""
+        for e in ws:
+            if e.sim._stale:  # poses are current after a step; not after a diverged one's reset
+                e.sim._forward()
+        R = np.array([e.sim._coupler_xmat for e in ws]).reshape(-1, 3, 3)
+        ang = np.array([e._axis_angle for e in ws])
+        v = np.stack([np.zeros_like(ang), np.cos(ang), np.sin(ang)], axis=1)
+        axis = np.matmul(R, v[:, :, None])[:, :, 0]
+        amp, freq, phase, thrust = (np.array([getattr(e, k) for e in ws]) for k in ("_amp", "_freq", "_phase",
+                                                                                      "_thrust"))
+        torque = (amp * np.sin(2 * np.pi * freq * tc + phase))[:, None] * axis
+        return np.concatenate([-thrust[:, None] * R[:, :, 0], torque], axis=1)
 
     def _contact_force(self) -> float:
         """The thrust of the workpiece on the bit (N) while engaged."""

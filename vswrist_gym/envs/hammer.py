@@ -205,8 +205,10 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         self._face = face  # the nail: where the head's face meets the anvil on the nominal swing
         self._t0 = float(self.data.time)  # the episode's t = 0 (after the settling)
 
-    def _reference(self, t: float) -> np.ndarray:
-        return np.array([self._rud, float(np.interp(t, self._swing_t, self._swing_fe)), self._ps])
+    def _reference(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        return np.stack([np.full_like(t, self._rud), np.interp(t, self._swing_t, self._swing_fe),
+                         np.full_like(t, self._ps)], axis=-1)
 
     # ------------------------------------------------------------------ the strike, to the substep
     def _on_first_contact(self, time: float, pos: np.ndarray, vel: np.ndarray) -> None:

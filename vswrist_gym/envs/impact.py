@@ -87,13 +87,12 @@ class ImpactEnv(VSWristEnv):
         self.data.mocap_pos[self._mocap] = centre
         self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
 
-    def _reference(self, t: float) -> np.ndarray:
-        if t <= self._move:
-            s = smoothstep(t / self._move)
-        else:
-            back = max(self.cfg["episode_s"] - self._move, 1e-6)
-            s = 1.0 - smoothstep((t - self._move) / back)
-        return np.array([self._rud, self._fe0 + s * (self._fe1 - self._fe0), self._ps])
+    def _reference(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        back = max(self.cfg["episode_s"] - self._move, 1e-6)
+        s = np.where(t <= self._move, smoothstep(t / self._move), 1.0 - smoothstep((t - self._move) / back))
+        return np.stack([np.full_like(t, self._rud), self._fe0 + s * (self._fe1 - self._fe0),
+                         np.full_like(t, self._ps)], axis=-1)
 
     def _contact_force(self) -> float:
         return float(self.data.sensordata[self._touch_adr])

@@ -187,10 +187,11 @@ class InsertionEnv(VSWristEnv):
             self.data.mocap_pos[m] = entrance
             self.data.mocap_quat[m] = quat_from_matrix(R)
 
-    def _reference(self, t: float) -> np.ndarray:
-        s = min(t / self.tp["approach_s"], 1.0)
+    def _reference(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        s = np.minimum(t / self.tp["approach_s"], 1.0)
         rud = self.tp["start_rud"] + s * (self._rud_end - self.tp["start_rud"])
-        return np.array([rud, self._fe, self._ps])
+        return np.stack([rud, np.full_like(t, self._fe), np.full_like(t, self._ps)], axis=-1)
 
     def _contact_force(self) -> float:
         """Normal force (N) of the walls and chamfers on the tool: the jamming force (the fit plate is apart)."""

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..sim import WristSim
 from .base import VSWristEnv
 from .shared import smoothstep
 
@@ -65,17 +66,23 @@ class LoadHoldEnv(VSWristEnv):
         u0 = self._targets[0]
         return u0[:2], float(u0[2]), float(rng.uniform(-1.0, 1.0))
 
-    def _reference(self, t: float) -> np.ndarray:
-        ref = self._targets[0].copy()
+    def _reference(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)[..., None]
+        ref = np.broadcast_to(self._targets[0], t.shape[:-1] + (3,))
         for k, ts in enumerate(self._switch):
-            if t > ts:
-                ref = ref + smoothstep((t - ts) / self.blend_s) * (self._targets[k + 1] - self._targets[k])
-        return ref
+            step = smoothstep((t - ts) / self.blend_s) * (self._targets[k + 1] - self._targets[k])
+            ref = np.where(t > ts, ref + step, ref)
+        return np.array(ref)
 
-    def _before_physics(self, t: float) -> None:
+    @classmethod
+    def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
         # the load acts from the first control period that starts at or after its onset
-        if t + 1e-12 >= self._onset:
-            self.sim.apply_wrench(self._load_force, np.zeros(3))
+        on = np.flatnonzero(t + 1e-12 >= np.array([e._onset for e in worlds])).tolist()
+        if on:
+            ws = [worlds[k] for k in on]
+            wrench = np.zeros((len(ws), 6))
+            wrench[:, :3] = [e._load_force for e in ws]
+            WristSim.apply_wrenches([e.sim for e in ws], wrench)
 
     def load_info(self) -> dict:
         """The episode's hidden load (for analysis, not for the agent): mass kg, onset s, force N."""

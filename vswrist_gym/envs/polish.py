@@ -127,10 +127,11 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
         self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
         self._surface = (p0, R[:, 2])
 
-    def _reference(self, t: float) -> np.ndarray:
+    def _reference(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
         rud_goal = self._rud_c + self.tp["press"]
         rud = self._u_start[0] + smoothstep(t / self.approach_s) * (rud_goal - self._u_start[0])
-        return np.array([rud, self._fe(t), self._ps])
+        return np.stack([rud, self._fe(t), np.full_like(t, self._ps)], axis=-1)
 
     def _task_obs_terms(self):
         from .observations import ObsTerm

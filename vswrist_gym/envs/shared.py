@@ -51,9 +51,9 @@ def add_mocap_box_body(spec: mujoco.MjSpec, name: str, boxes, rgba=(0.55, 0.45, 
 
 
 
-def smoothstep(x: float) -> float:
-    """Minimum-jerk blend 0 -> 1 on x in [0, 1]."""
-    x = min(max(x, 0.0), 1.0)
+def smoothstep(x):
+    """Minimum-jerk blend 0 -> 1 on x in [0, 1] (a number or an array, element-wise)."""
+    x = np.minimum(np.maximum(x, 0.0), 1.0)
     return x * x * x * (10.0 + x * (-15.0 + 6.0 * x))
 
 
