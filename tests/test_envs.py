@@ -702,3 +702,34 @@ def test_polish_force_is_the_period_mean_of_the_substep_contact_forces():
             if k >= 25:  # after the approach (0.3 s) and settling: pressed on the surface
                 pressed.append(info["contact_force"])
     assert min(pressed) > 1.0, min(pressed)
+
+
+def test_sensor_noise_is_white_with_the_configured_spread():
+    """The posture observation minus the measured posture is the sensor noise: zero-mean, with the configured
+    standard deviation (0.002 rad by default), a new draw at every observation (not an episode-long offset), and
+    new draws in the next episode. 3 x 151 samples per episode estimate a standard deviation to about 3 %, so
+    the +-25 % bound cannot be met by a wrong scale (x2, x0.5) or by noise drawn once per episode."""
+    env = make("VSWrist/LoadHold-v0")
+    u = env.unwrapped
+    sl = u.obs_slices["posture"]
+    std = u.cfg["randomize"]["sensor_noise"]["posture"]
+    episodes = []
+    obs, _ = env.reset(seed=7)
+    for _ in range(2):
+        rows = [obs[sl] - u._posture]
+        done = False
+        while not done:
+            obs, _, term, trunc, _ = env.step(baseline_action(env))
+            rows.append(obs[sl] - u._posture)
+            done = term or trunc
+        episodes.append(np.array(rows))
+        obs, _ = env.reset()
+    for z in episodes:
+        assert len(z) == u.episode_steps + 1
+        assert 0.75 * std < z.std() < 1.25 * std
+        assert abs(z.mean()) < 4 * std / np.sqrt(z.size)
+        # white: successive draws are uncorrelated (|r| < 0.2 with 450 pairs; an offset held over the episode gives 1)
+        r = np.corrcoef(z[1:].ravel(), z[:-1].ravel())[0, 1]
+        assert abs(r) < 0.2
+    n = min(len(episodes[0]), len(episodes[1]))
+    assert not np.allclose(episodes[0][:n], episodes[1][:n])

@@ -261,6 +261,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._sum_contact_sq = 0.0
         self._noise_std = None
         self._nz = None
+        self._noise = None
         self._latency = 0.0
         self._theta_prev = None
         self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
@@ -302,6 +303,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
             self.sim.loop_closure_error()
         self._needs_reset = False
         self._theta_prev = None
+        self._draw_noise_table()
         if self.cfg["action_mode"] == "residual":
             self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
         return self._observation(), self._info({}, final=False)

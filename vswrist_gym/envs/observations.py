@@ -77,8 +77,15 @@ class ObservationsMixin:
 
     _NOISE_LAYOUT = ("posture",) * 3 + ("posture_rate",) * 3 + ("force",) * 3 + ("torque",) * 3 + ("force",)
 
+    def _draw_noise_table(self) -> None:
+        """The episode's sensor noise, one row per observation (the reset's, then each step's), drawn at reset
+        in one call: the same numbers, in the same order, as one draw of 13 per observation, without a
+        generator call per step (a batch pays it once per world and episode, not per step)."""
+        self._noise = None if self._noise_std is None else \
+            self.np_random.normal(0.0, 1.0, (self.episode_steps + 1, 13)) * self._noise_scale
+
     def _draw_noise(self) -> None:
-        self._nz = None if self._noise_std is None else self.np_random.normal(0.0, 1.0, 13) * self._noise_scale
+        self._nz = None if self._noise is None else self._noise[self._step]
 
     def _obs_posture(self):
         return self._posture if self._nz is None else self._posture + self._nz[0:3]
