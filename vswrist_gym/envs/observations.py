@@ -80,7 +80,8 @@ class ObservationsMixin:
     def _draw_noise_table(self) -> None:
         """The episode's sensor noise, one row per observation (the reset's, then each step's), drawn at reset
         in one call: the same numbers, in the same order, as one draw of 13 per observation, without a
-        generator call per step (a batch pays it once per world and episode, not per step)."""
+        generator call per step (a batch pays it once per world and episode, not per step). An episode that
+        ends early (a divergence, the closure limit) leaves its last rows unread."""
         self._noise = None if self._noise_std is None else \
             self.np_random.normal(0.0, 1.0, (self.episode_steps + 1, 13)) * self._noise_scale
 
