@@ -41,7 +41,8 @@ def _registered_vswrist() -> list[str]:
 # the packaged files besides configs/<algo>.yaml whose entries are run for committed tables
 EXTRA_FILES = {"sac": ["sac_tuned.yaml", "sac_stiffness.yaml", "sac_hammer_tuned.yaml"],
                "ppo": ["ppo_stiffness_tuned.yaml", "ppo_hammer_tuned.yaml", "ppo_insertion_tuned.yaml",
-                       "ppo_impact_stiffness_symmetric.yaml"]}
+                       "ppo_impact_stiffness_symmetric.yaml"],
+               "ppo_lstm": ["ppo_lstm_stiffness.yaml"]}
 
 
 def _files(algo: str) -> list[Path]:

@@ -16,7 +16,7 @@ COMMANDS = {
     "bench-env": ("vswrist_gym.tools.bench:main", "environment speed against Gymnasium's Ant-v5"),
     "video": ("vswrist_gym.tools.video:main", "write an episode video of an agent on a task"),
     "view": ("vswrist_gym.tools.view:main", "MuJoCo's interactive viewer on a running episode"),
-    "train": ("vswrist_gym.agents.train:main", "train a PPO or SAC policy"),
+    "train": ("vswrist_gym.agents.train:main", "train a PPO, SAC or recurrent PPO (ppo_lstm) policy"),
     "evaluate": ("vswrist_gym.agents.evaluate:main", "evaluate a trained or analytic agent"),
     "compare": ("vswrist_gym.agents.compare:main", "train, evaluate and compare agents on a task"),
     "aggregate": ("vswrist_gym.agents.aggregate:main", "scores across tasks: IQM, probability of improvement"),

@@ -29,6 +29,8 @@ from vswrist_gym.agents.runs import (RunDirError, TrainedAgent, check_new_out, c
 # what a compare output folder holds: a folder with anything else is refused as --out
 COMPARE_OUTPUT_NAMES = ("table.md", "summary.json", "learning_curves.png", "traces.png", "eval", "runs")
 
+# the algorithms `vswrist compare` trains unless --algos says otherwise (the README's main job: PPO and SAC)
+DEFAULT_ALGOS = ("ppo", "sac")
 DEFAULT_STIFFNESS_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 TABLE_METRICS = ("return", "success", "rms_posture_error", "peak_contact_force", "rms_contact_force",
                  "elastic_energy", "stiffness_used")
@@ -310,7 +312,7 @@ def write_outputs(out: Path, env_id: str, rows: dict, runs: dict, traces: dict, 
     return doc
 
 
-def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, stiffness=DEFAULT_STIFFNESS_LEVELS,
+def compare(task: str, algos=DEFAULT_ALGOS, seeds=(0, 1, 2), episodes: int = 10, stiffness=DEFAULT_STIFFNESS_LEVELS,
             out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
             n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
             jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=print,
@@ -384,7 +386,8 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
         write_metrics(out / "eval" / algo, head, records, rows[algo.upper()])
         log(f"evaluated {algo.upper()}: return {rows[algo.upper()]['return']['mean']:.4g}")
     if len(env_kwargs_seen) > 1:
-        log("warning: the PPO and SAC runs use different env_kwargs; their rows are not on the same environment")
+        log(f"warning: the {' and '.join(a.upper() for a in algos)} runs use different env_kwargs; their rows are "
+            "not on the same environment")
     baselines = []
     if analytic:
         for k in stiffness:
@@ -414,7 +417,8 @@ def compare(task: str, algos=ALGO_NAMES, seeds=(0, 1, 2), episodes: int = 10, st
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vswrist compare", description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--task", required=True, help="task id (VSWrist/LoadHold-v0) or short name (LoadHold: its newest version)")
-    p.add_argument("--algos", nargs="+", choices=ALGO_NAMES, default=list(ALGO_NAMES))
+    p.add_argument("--algos", nargs="+", choices=ALGO_NAMES, default=list(DEFAULT_ALGOS),
+                   help="algorithms to train (default ppo sac; ppo_lstm: sb3-contrib's RecurrentPPO)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
                    help="training and evaluation seeds (default 0 1 2)")
     p.add_argument("--episodes", type=int, default=10, help="evaluation episodes per seed (default 10)")
@@ -426,6 +430,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sac-timesteps", type=int, help="SAC training steps per seed (default: configs/sac.yaml)")
     p.add_argument("--ppo-config", help="PPO hyperparameter file (default configs/ppo.yaml)")
     p.add_argument("--sac-config", help="SAC hyperparameter file (default configs/sac.yaml)")
+    p.add_argument("--ppo-lstm-timesteps", type=int,
+                   help="PPO_LSTM training steps per seed (default: configs/ppo_lstm.yaml)")
+    p.add_argument("--ppo-lstm-config", help="PPO_LSTM hyperparameter file (default configs/ppo_lstm.yaml)")
     p.add_argument("--n-envs", type=int, help="parallel environments per training run (overrides n_envs)")
     p.add_argument("--track", choices=TRACKS,
                    help="stiffness: the policies set only the stiffness; full: posture and stiffness (default: as "
@@ -445,13 +452,13 @@ def main(argv: list[str] | None = None) -> int:
         for k in args.stiffness:
             if not -1.0 <= k <= 1.0:
                 raise ConfigError(f"--stiffness values must be in [-1, 1], got {k}")
-        for name in ("episodes", "ppo_timesteps", "sac_timesteps", "n_envs", "jobs"):
+        for name in ("episodes", "ppo_timesteps", "sac_timesteps", "ppo_lstm_timesteps", "n_envs", "jobs"):
             v = getattr(args, name)
             if v is not None and v <= 0:
                 raise ConfigError(f"--{name.replace('_', '-')} must be a positive integer, got {v}")
         doc = compare(args.task, algos=args.algos, seeds=args.seeds, episodes=args.episodes, stiffness=args.stiffness,
-                      out=args.out, timesteps={"ppo": args.ppo_timesteps, "sac": args.sac_timesteps},
-                      configs={"ppo": args.ppo_config, "sac": args.sac_config}, n_envs=args.n_envs,
+                      out=args.out, timesteps={algo: getattr(args, f"{algo}_timesteps") for algo in ALGO_NAMES},
+                      configs={algo: getattr(args, f"{algo}_config") for algo in ALGO_NAMES}, n_envs=args.n_envs,
                       retrain=args.retrain, analytic=not args.no_analytic, progress=not args.no_progress,
                       jobs=args.jobs, runs_dir=args.runs_dir, argv=argv, track=args.track)
     except (ConfigError, RunDirError, ValueError) as exc:

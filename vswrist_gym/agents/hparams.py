@@ -28,14 +28,17 @@ from typing import Any
 import yaml
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
-ALGO_NAMES = ("ppo", "sac")
+ALGO_NAMES = ("ppo", "sac", "ppo_lstm")
+# the policy class each algorithm takes (the observations are flat vectors); ppo_lstm is sb3-contrib's RecurrentPPO,
+# named as RL Zoo names it: PPO with an LSTM, for tasks whose best action depends on what happened earlier
+POLICIES = {"ppo": "MlpPolicy", "sac": "MlpPolicy", "ppo_lstm": "MlpLstmPolicy"}
 RUN_SECTION = "vswrist"  # the top-level section of run settings that RL Zoo has no key for
 
 # Keys of an RL Zoo entry that configure the run rather than the algorithm, with their meaning.
 ZOO_RUN_KEYS = {
     "n_timesteps": "total environment steps of training (int > 0)",
     "n_envs": "parallel environments (int > 0), run as the section's vec_env says",
-    "policy": "stable-baselines3 policy class name (MlpPolicy)",
+    "policy": "stable-baselines3 policy class name (MlpPolicy; MlpLstmPolicy for ppo_lstm)",
     "normalize": "false, true, or VecNormalize options as a mapping or a dict(...) string (norm_obs, norm_reward, "
                  "clip_obs, clip_reward, epsilon)",
     "env_kwargs": "mapping passed to gymnasium.make",
@@ -108,9 +111,14 @@ class RunConfig:
 
 
 def algo_class(algo: str):
-    """The stable-baselines3 class for 'ppo' or 'sac' (imported lazily: torch is heavy)."""
+    """The stable-baselines3 class for 'ppo' or 'sac', sb3-contrib's RecurrentPPO for 'ppo_lstm' (imported
+    lazily: torch is heavy)."""
     if algo not in ALGO_NAMES:
         raise ConfigError(f"algo must be one of {', '.join(ALGO_NAMES)}, got {algo!r}")
+    if algo == "ppo_lstm":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
     import stable_baselines3
 
     return getattr(stable_baselines3, algo.upper())
@@ -370,9 +378,10 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
     vec_env = entry.pop("vec_env", "batch")
     if vec_env not in VEC_ENVS:
         raise ConfigError(f"'vec_env' must be one of {list(VEC_ENVS)}, got {vec_env!r}")
-    policy = entry.pop("policy", "MlpPolicy")
-    if policy != "MlpPolicy":
-        raise ConfigError(f"'policy' must be 'MlpPolicy' (the observations are flat vectors), got {policy!r}")
+    policy = entry.pop("policy", POLICIES[algo])
+    if policy != POLICIES[algo]:
+        raise ConfigError(f"'policy' must be '{POLICIES[algo]}' for {algo} (the observations are flat vectors), "
+                          f"got {policy!r}")
     normalize = entry.pop("normalize", False)
     if isinstance(normalize, str):  # RL Zoo's "dict(norm_obs=True, norm_reward=False)"
         normalize = parse_dict_string("normalize", normalize, names=False)

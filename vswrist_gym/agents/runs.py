@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from vswrist_gym.agents.hparams import ConfigError, RunConfig, algo_class, resolve_entry
+from vswrist_gym.agents.hparams import ALGO_NAMES, ConfigError, RunConfig, algo_class, resolve_entry
 
 
 class RunDirError(RuntimeError):
@@ -705,8 +705,9 @@ def read_zoo_run(folder: Path) -> tuple[RunConfig, int, Path]:
             raise TypeError(f"{ZOO_CONFIG_FILE} holds a {type(hyper).__name__}, not the entry")
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise RunDirError(f"{params}: RL Zoo files not readable ({type(exc).__name__}: {exc})") from None
-    if algo not in ("ppo", "sac"):
-        raise RunDirError(f"{folder}: an RL Zoo {algo.upper()} run; vswrist evaluates PPO and SAC runs only")
+    if algo not in ALGO_NAMES:
+        raise RunDirError(f"{folder}: an RL Zoo {algo.upper()} run; vswrist evaluates {', '.join(ALGO_NAMES)} runs "
+                          f"only")
     hyper = dict(hyper)
     if args.get("env_kwargs") is not None:
         hyper["env_kwargs"] = args["env_kwargs"]

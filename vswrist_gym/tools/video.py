@@ -52,6 +52,19 @@ def adaptive_agent(env, threshold: float = 0.05):
     return act
 
 
+
+def stateful_policy(agent):
+    """obs -> action for one episode, carrying the agent's recurrent state (ppo_lstm) from step to step and
+    flagging the first step as an episode start, as the evaluation protocol does; stateless agents ignore both."""
+    memory = {"state": None, "start": np.ones((1,), dtype=bool)}
+
+    def policy(obs):
+        action, memory["state"] = agent.predict(obs, state=memory["state"], episode_start=memory["start"],
+                                                deterministic=True)
+        memory["start"] = np.zeros((1,), dtype=bool)
+        return action
+    return policy
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", required=True, type=resolve_id,
@@ -115,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             env.close()
             print(f"vswrist video: error: {exc}", file=sys.stderr)
             return 2
-        policy = lambda obs: agent.predict(obs, deterministic=True)[0]  # noqa: E731
+        policy = stateful_policy(agent)
 
     obs, info = env.reset(seed=args.seed)
     fps = env.unwrapped.metadata["render_fps"]

@@ -95,7 +95,9 @@ class ViewerSession:
     def step(self) -> None:
         import numpy as np
 
-        action, _ = self.agent.predict(self.obs, episode_start=np.array([self.episode_start]), deterministic=True)
+        # the recurrent state (ppo_lstm) is carried from step to step; episode_start resets it
+        action, self._state = self.agent.predict(self.obs, state=getattr(self, "_state", None),
+                                                 episode_start=np.array([self.episode_start]), deterministic=True)
         self.episode_start = False
         self.obs, reward, term, trunc, info = self.env.step(action)
         self._ret += float(reward)
