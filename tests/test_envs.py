@@ -733,3 +733,29 @@ def test_sensor_noise_is_white_with_the_configured_spread():
         assert abs(r) < 0.2
     n = min(len(episodes[0]), len(episodes[1]))
     assert not np.allclose(episodes[0][:n], episodes[1][:n])
+
+
+def test_sensor_noise_matches_one_draw_per_observation_across_early_resets():
+    """Against the definition written out here (13 normals from the env's generator at every observation), on
+    episodes cut short by a reset without a seed and on one run to its end: the same observations, bit for bit."""
+    env, ref = make("VSWrist/LoadHold-v0"), make("VSWrist/LoadHold-v0")
+    r = ref.unwrapped
+
+    def draw():
+        r._nz = None if r._noise_std is None else r.np_random.normal(0.0, 1.0, 13) * r._noise_scale
+
+    r._draw_noise, r._draw_noise_table, r._rewind_unread_noise = draw, (lambda: None), (lambda: None)
+    steps = env.unwrapped.episode_steps
+    rng = np.random.default_rng(0)
+    first = True
+    for length in (10, 3, steps, 25, 0, steps):
+        a, _ = env.reset(seed=5) if first else env.reset()
+        b, _ = ref.reset(seed=5) if first else ref.reset()
+        first = False
+        np.testing.assert_array_equal(a, b)
+        for _ in range(length):
+            act = rng.uniform(-1, 1, 4).astype(np.float32)
+            a, ra, ta, tra, _ = env.step(act)
+            b, rb, tb, trb, _ = ref.step(act)
+            np.testing.assert_array_equal(a, b)
+            assert (ra, ta, tra) == (rb, tb, trb)

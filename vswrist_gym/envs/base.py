@@ -275,6 +275,8 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
     # the other worlds' physics: ``_reset_begin`` (the episode's draws, the initial state and references),
     # ``_settle`` (the physics only: touches nothing but this world's MjModel/MjData) and ``_reset_finish``.
     def _reset_begin(self, seed: int | None) -> None:
+        if seed is None:
+            self._rewind_unread_noise()
         super().reset(seed=seed)
         self._reset_state()
         self._randomize()

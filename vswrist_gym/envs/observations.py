@@ -80,10 +80,20 @@ class ObservationsMixin:
     def _draw_noise_table(self) -> None:
         """The episode's sensor noise, one row per observation (the reset's, then each step's), drawn at reset
         in one call: the same numbers, in the same order, as one draw of 13 per observation, without a
-        generator call per step (a batch pays it once per world and episode, not per step). An episode that
-        ends early (a divergence, the closure limit) leaves its last rows unread."""
-        self._noise = None if self._noise_std is None else \
-            self.np_random.normal(0.0, 1.0, (self.episode_steps + 1, 13)) * self._noise_scale
+        generator call per step (a batch pays it once per world and episode, not per step)."""
+        if self._noise_std is None:
+            self._noise = None
+            return
+        self._noise_rng_state = self.np_random.bit_generator.state
+        self._noise = self.np_random.normal(0.0, 1.0, (self.episode_steps + 1, 13)) * self._noise_scale
+
+    def _rewind_unread_noise(self) -> None:
+        """Before a reset without a seed: if the last episode ended before its last step (a divergence, the
+        closure limit, a reset mid-episode), leave the generator where one draw per observation would have left
+        it, so that the next episodes are the same whatever the table drew ahead."""
+        if getattr(self, "_noise", None) is not None and self._step < self.episode_steps:
+            self.np_random.bit_generator.state = self._noise_rng_state
+            self.np_random.normal(0.0, 1.0, (self._step + 1, 13))
 
     def _draw_noise(self) -> None:
         self._nz = None if self._noise is None else self._noise[self._step]
