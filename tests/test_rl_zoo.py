@@ -61,10 +61,10 @@ def test_sac_file_loads_in_rl_zoo(tmp_path):
     assert (tmp_path / "logs" / "sac" / f"{FOLDER}_1" / f"{FOLDER}.zip").is_file()
 
 
-def enjoy_returns(logs, cwd) -> list[float]:
-    """The episode returns ``rl_zoo3.enjoy`` prints for experiment 1 of PPO on TASK under ``logs``
+def enjoy_returns(logs, cwd, algo: str = "ppo") -> list[float]:
+    """The episode returns ``rl_zoo3.enjoy`` prints for experiment 1 of ``algo`` on TASK under ``logs``
     (deterministic, the evaluation reset seed; RL Zoo's own loading of the model and its statistics)."""
-    res = run("-m", "rl_zoo3.enjoy", "--algo", "ppo", "--env", TASK, "--gym-packages", "vswrist_gym",
+    res = run("-m", "rl_zoo3.enjoy", "--algo", algo, "--env", TASK, "--gym-packages", "vswrist_gym",
               "-f", logs, "--exp-id", "1", "-n", "150", "--no-render", "--deterministic",
               "--device", "cpu", "--seed", EVAL_SEED, cwd=cwd)
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
@@ -187,3 +187,26 @@ def test_frame_stacked_zoo_run_replays_as_in_enjoy(tmp_path):
     assert res.returncode == 0, res.stderr
     doc = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert doc["episodes"][0]["return"] == pytest.approx(enjoy[0], abs=0.006)  # enjoy prints two decimals
+
+
+def test_recurrent_zoo_run_replays_as_in_enjoy(tmp_path):
+    """RL Zoo's ppo_lstm (sb3-contrib's RecurrentPPO) from the shipped configs/ppo_lstm.yaml: rl_zoo3 trains it,
+    enjoy replays it carrying the LSTM state, and `vswrist evaluate` on the same reset seed gives enjoy's return."""
+    import yaml
+
+    entry = dict(hparams.load_file(hparams.default_config_path("ppo_lstm"))[TASK])
+    entry.update(n_envs=2, n_steps=64, batch_size=64, n_epochs=1)
+    conf = tmp_path / "lstm.yaml"
+    conf.write_text(yaml.safe_dump({TASK: entry}))
+    res = run("-m", "rl_zoo3.train", "--algo", "ppo_lstm", "--env", TASK, "--gym-packages", "vswrist_gym",
+              "--conf-file", conf, "--vec-env", "dummy", "--eval-freq", "-1", "-n", "256", "--seed", "0",
+              "--device", "cpu", "-f", "logs", "--num-threads", "1", cwd=tmp_path)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
+    folder = tmp_path / "logs" / "ppo_lstm" / f"{FOLDER}_1"
+    enjoy = enjoy_returns(folder.parent.parent, tmp_path, algo="ppo_lstm")
+    res = run("-m", "vswrist_gym.cli", "evaluate", "--task", TASK, "--agent", folder, "--seeds", "0",
+              "--episodes", "1", "--out", tmp_path / "ev", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert doc["episodes"][0]["return"] == pytest.approx(enjoy[0], abs=0.006)  # enjoy prints two decimals
+
