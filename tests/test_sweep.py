@@ -91,6 +91,7 @@ def _as_swept(sw, env_id: str) -> dict:
     ("sac_hammer", None), ("sac_hammer_posture_only", "stiffness_scale"),
     ("sac_insertion_posture_only", "stiffness_scale"),
     ("sac_stiffness", "posture_scale"), ("impact_stiffness_symmetric", "posture_scale"),
+    ("lstm_stiffness", "posture_scale"),
 ])
 def test_committed_sweeps_describe_the_committed_tables(name, channel):
     """Each sweep file reruns the grid its committed tables came from: the tasks, seeds, episodes, stiffness
