@@ -159,3 +159,31 @@ def test_evaluate_records_the_strike_speed_of_the_last_step():
     assert np.isnan(other[0]["impact_speed"])
     assert "impact_speed" in table_markdown([("a", summarise(records))])
     assert "impact_speed" not in table_markdown([("a", summarise(other))])
+
+
+def test_swings_integrated_over_arrays_are_the_scalar_swings_to_the_bit():
+    """A batch whose worlds reset together integrates their swing ramps over arrays (``ramp_references``); each
+    world's ramp must be what the single env integrates alone with the same seed, point for point: the batch's
+    worlds and ``gym.make`` replay the same episodes only then."""
+    from vswrist_gym.envs import hammer
+
+    n = hammer.RAMP_ARRAY_MIN_WORLDS + 3
+    v = gym.make_vec("VSWrist/Hammer-v0", num_envs=n, vectorization_mode="vector_entry_point", threads=1)
+    v.reset(seed=40)
+    worlds = v.unwrapped.envs
+    assert len({e._rud for e in worlds}) == n  # distinct swings
+    for i, e in enumerate(worlds):
+        alone = gym.make("VSWrist/Hammer-v0").unwrapped
+        alone.reset(seed=40 + i)
+        assert alone._rud == e._rud
+        ts, fes = hammer.ramp_reference(alone.tp["fe_start"], alone.tp["fe_end"], alone._fe_rate,
+                                        alone.tp["swing_start_s"], alone.cfg["episode_s"])
+        for got in ((e._swing_t, e._swing_fe), (alone._swing_t, alone._swing_fe)):
+            assert np.array_equal(got[0], ts) and np.array_equal(got[1], fes)
+        alone.close()
+    # a ramp cut by the episode's end: every ramp stops at the same time, where the scalar loop stops
+    short = hammer.ramp_references(-0.75, 0.95, lambda fe, rows: np.full(len(rows), 1.0), 3, 0.05, 0.3)
+    alone = hammer.ramp_reference(-0.75, 0.95, lambda fe: 1.0, 0.05, 0.3)
+    for ts, fes in short:
+        assert np.array_equal(ts, alone[0]) and np.array_equal(fes, alone[1])
+    v.close()

@@ -79,8 +79,9 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
 
     * ``_scene(spec)``: add geometry to the MjSpec before compilation (``SceneMixin`` helpers in ``shared``:
       ``_add_tool_geom``, ``_add_touch_sensor``, ``add_mocap_box_body``); ``_scene_ids()``: look up ids after;
-    * ``_task_reset(rng) -> (u (2,), ps, stiffness command)``: sample the episode; ``_after_reset()``: place
-      objects once the wrist stands at its initial posture (``tool_point``);
+    * ``_task_reset(rng) -> (u (2,), ps, stiffness command)``: sample the episode; optionally the class method
+      ``_reset_worlds(worlds)``: what the episode's set-up computes over the worlds that reset together (Hammer's
+      swing); ``_after_reset()``: place objects once the wrist stands at its initial posture (``tool_point``);
     * ``_reference(t) -> (..., 3)``: the posture reference (RUD, FE, PS) at time t (s), a number or an array of
       times (written over arrays: each reset evaluates the episode's control instants in one call);
     * ``_before_physics(t)``: external loads for the coming period (``self.sim.apply_wrench``), or, over arrays
@@ -268,6 +269,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self._reset_begin(seed)
+        type(self)._reset_worlds([self])
         self._settle()
         return self._reset_finish()
 
@@ -418,6 +420,12 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
 
     def _reference(self, t: float) -> np.ndarray:
         raise NotImplementedError
+
+    @classmethod
+    def _reset_worlds(cls, worlds: list) -> None:
+        """The part of the episode's set-up a task computes over the worlds that reset together, after each one's
+        ``_reset_begin`` (its draws and initial state) and before its ``_reset_finish``; Python state only (a batch
+        runs it while those worlds settle). The single env calls it with itself. Default: nothing."""
 
     def _before_physics(self, t: float) -> None:
         """Apply external loads for the coming control period. A task that writes its loads over arrays of worlds

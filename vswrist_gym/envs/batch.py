@@ -270,6 +270,8 @@ class VSWristVectorEnv(VectorEnv):
                 started[i] = None
             else:
                 started[i] = pool.submit(e._settle)
+        if worlds:  # the task's set-up over the worlds that reset together, beside their settling
+            type(self.envs[worlds[0]])._reset_worlds([self.envs[i] for i in worlds])
 
     def _end_reset(self, i: int, started: dict):
         """World i's reset, begun by ``_start_resets``: waits for its settling, then the single env's last
