@@ -124,15 +124,15 @@ def test_episode_starts_are_flagged_exactly_at_each_first_step():
 
 
 def test_resume_continues_the_recurrent_run(lstm_run, tmp_path):
+    """--resume loads the RecurrentPPO checkpoint and trains on to the new budget, in the same run record."""
     import shutil
 
-    run = tmp_path / "resumed"
-    shutil.copytree(lstm_run, run)
-    res = vswrist("train", "--task", TASK, "--algo", "ppo_lstm", "--timesteps", "768", "--out", run, "--resume",
-                  "--no-progress")
-    assert res.returncode == 0, res.stderr
-    doc = json.loads((run / "run.json").read_text())
-    assert doc["num_timesteps"] >= 768 and len(doc["commands"]) == 2 and doc["seed"] == 2
+    shutil.copytree(lstm_run, tmp_path / "r")
+    res = vswrist("train", "--task", TASK, "--algo", "ppo_lstm", "--timesteps", "768", "--out", tmp_path / "r",
+                  "--resume", "--no-progress")
+    doc = json.loads((tmp_path / "r" / "run.json").read_text()) if res.returncode == 0 else {}
+    assert (doc.get("num_timesteps", 0) >= 768, len(doc.get("commands", [])), doc.get("seed")) == (True, 2, 2), \
+        res.stderr
 
 
 def test_algorithm_and_policy_errors_name_the_allowed_values():
