@@ -25,6 +25,7 @@ import sys
 import numpy as np
 
 from vswrist_gym import TASKS, resolve_id
+from vswrist_gym.agents.hparams import ALGO_NAMES
 
 
 def reference_agent(env, stiffness: float):
@@ -72,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--agent", default="reference",
                     help="reference | adaptive | random | analytic[:S] | pretrained:TASK[:TRACK] | RUN_DIR | "
                          "RL Zoo folder | model file in one")
-    ap.add_argument("--algo", choices=("ppo", "sac"), help="check that a trained agent is of this algorithm")
+    ap.add_argument("--algo", choices=ALGO_NAMES, help="check that a trained agent is of this algorithm")
     ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
                     help="which model of a run directory (as in vswrist evaluate)")
     ap.add_argument("--out", required=True, help="output .mp4 file")
