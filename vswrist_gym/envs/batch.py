@@ -699,9 +699,9 @@ class VSWristVectorEnv(VectorEnv):
             h["contact"].append(c)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))
-            if noise:  # _draw_noise: the row of the episode's table
-                e._nz = nz = e._noise[e._step]
-                nz_rows.append(nz)
+            if noise:
+                e._draw_noise()
+                nz_rows.append(e._nz)
             for vals, (a, b, name) in zip(term_vals, world_terms):
                 if name != "tool_wrench":
                     vals.append(e._terms[name].fn())
