@@ -157,6 +157,22 @@ def test_unknown_and_bad_keys_are_named():
         hparams.resolve_entry("td3", "Pendulum-v1", {"n_timesteps": 100})
 
 
+@pytest.mark.parametrize("algo,key,value,match", [
+    ("ppo", "learning_rate", "6e-4", "decimal point"),  # YAML 1.1 reads an exponent without a point as text
+    ("sac", "batch_size", "abc", "must be a number"),
+    ("ppo", "use_sde", "yes", "true or false"),
+])
+def test_numeric_arguments_of_the_wrong_type_are_named(algo, key, value, match):
+    with pytest.raises(hparams.ConfigError, match=f"'{key}' {match}|{match}"):
+        hparams.resolve_entry(algo, "Pendulum-v1", {"n_timesteps": 100, key: value})
+
+
+def test_numeric_checks_leave_sb3s_other_forms_alone():
+    cfg = hparams.resolve_entry("sac", "Pendulum-v1", {"n_timesteps": 100, "ent_coef": "auto_0.1",
+                                                       "train_freq": [1, "episode"], "learning_rate": "lin_3e-4"})
+    assert cfg.algo_kwargs["ent_coef"] == "auto_0.1" and cfg.algo_kwargs["train_freq"] == [1, "episode"]
+
+
 @pytest.mark.parametrize("text", [
     "dict(a=__import__('os').system('echo pwned'))",   # a call other than dict(...)
     "dict(activation_fn=nn.Module)",                    # a name outside the allow-list

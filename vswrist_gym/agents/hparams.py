@@ -238,6 +238,28 @@ def parse_schedule(key: str, value: Any):
     return value
 
 
+def _check_number(key: str, value: Any, default: Any) -> None:
+    """An argument whose default is a number must be one (or, for a schedule, 'lin_<x>'): the algorithm would
+    otherwise fail deep inside stable-baselines3. YAML 1.1, which PyYAML and RL Zoo read, takes 6e-4 (no decimal
+    point) for text, the commonest way to get here."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"'{key}' must be true or false, got {value!r}")
+        return
+    if not isinstance(default, (int, float)) or isinstance(value, (list, tuple)) \
+            or (isinstance(value, (int, float)) and not isinstance(value, bool)):
+        return  # a list is SB3's (frequency, unit) form of train_freq; other types are SB3's to judge
+    if isinstance(value, str) and value.startswith("lin_"):
+        return  # a schedule; parse_schedule reads it
+    hint = ""
+    if isinstance(value, str):
+        try:
+            hint = f" (YAML reads {value} as text: write it with a decimal point, {float(value):.1e})"
+        except ValueError:
+            pass
+    raise ConfigError(f"'{key}' must be a number, got {value!r}{hint}")
+
+
 _LITERALS = (int, float, str, bool, type(None))
 
 
@@ -416,6 +438,9 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
             f"{source or 'entry'} [{env_id}]: unknown key(s) {bad} for {algo.upper()}; allowed: "
             f"run keys {sorted(RUN_KEYS)} and {algo.upper()} arguments {sorted(allowed - {'policy_kwargs'})}"
         )
+    params = inspect.signature(cls.__init__).parameters
+    for key, value in entry.items():
+        _check_number(key, value, params[key].default)
     algo_kwargs = {k: parse_schedule(k, v) for k, v in entry.items()}
     return RunConfig(env_id=env_id, algo=algo, n_timesteps=n_timesteps, n_envs=n_envs, vec_env=vec_env,
                      policy=policy, normalize=normalize, env_kwargs=env_kwargs, eval_freq=eval_freq,
