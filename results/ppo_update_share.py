@@ -1,7 +1,10 @@
 """How PPO's training time splits between collecting rollouts and the update, on LoadHold with the packaged entry
-(16 worlds in one process, 64 steps per rollout, 10 epochs of 128-sample minibatches, one torch thread):
+(its worlds in one process, its rollout, epochs and minibatches; one torch thread):
 
-    python results/ppo_update_share.py [--timesteps 16384] [--torch-threads 1]
+    python results/ppo_update_share.py [--timesteps 16384] [--torch-threads 1] [--set KEY=VALUE ...]
+
+``--set`` changes entry keys (``--set n_envs=16 n_steps=64 batch_size=128`` is the entry before
+2026-12-04), so that the update's cost per minibatch can be read off side by side.
 
 Times SB3's own ``collect_rollouts`` (environment steps, policy forward, buffer) and ``train`` (the update) with
 wall clocks around them. Why: more worlds per step amortise the first but not the second, which bounds the
@@ -14,11 +17,12 @@ import argparse
 import time
 
 import torch
-import torch.nn as nn
+import yaml
 from stable_baselines3 import PPO
 from stable_baselines3.common.utils import configure_logger
 from stable_baselines3.common.vec_env import VecNormalize
 
+from vswrist_gym.agents.hparams import load_config
 from vswrist_gym.agents.vec_env import BatchVecEnv
 
 
@@ -26,12 +30,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--timesteps", type=int, default=16384)
     ap.add_argument("--torch-threads", type=int, default=1)
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", help="entry keys to change (YAML values)")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.torch_threads)
-    venv = VecNormalize(BatchVecEnv("VSWrist/LoadHold-v0", 16, env_kwargs={"action_mode": "residual"}, threads=2))
-    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=128, n_epochs=10, gamma=0.95, device="cpu", seed=0,
-                policy_kwargs=dict(log_std_init=-1.5, net_arch=dict(pi=[64, 64], vf=[64, 64]),
-                                   activation_fn=nn.Tanh), verbose=0)
+    changes = {}
+    for pair in args.set:
+        key, sep, value = pair.partition("=")
+        if not sep:
+            ap.error(f"--set: {pair!r} is not KEY=VALUE")
+        changes[key] = yaml.safe_load(value)
+    cfg = load_config("ppo", "VSWrist/LoadHold-v0")
+    n_envs = int(changes.pop("n_envs", cfg.n_envs))
+    kwargs = {**cfg.algo_kwargs, **changes}
+    venv = VecNormalize(BatchVecEnv("VSWrist/LoadHold-v0", n_envs, env_kwargs=cfg.env_kwargs, threads=2))
+    model = PPO(cfg.policy, venv, device="cpu", seed=0, policy_kwargs=cfg.policy_kwargs, verbose=0, **kwargs)
+    print(f"{n_envs} worlds, n_steps {kwargs['n_steps']}, batch_size {kwargs['batch_size']}, "
+          f"n_epochs {kwargs.get('n_epochs', 10)}")
     model._logger = configure_logger(0, None, "", False)
     spent = {"collect_rollouts": 0.0, "train": 0.0}
     for name in spent:

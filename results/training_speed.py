@@ -2,14 +2,19 @@
 
     python results/training_speed.py [--task LoadHold] [--algo ppo] [--timesteps 80000] [--seeds 0 1 2]
                                      [--out results/training_speed] [--worlds N]
+                                     [--variant LABEL KEY=VALUE [KEY=VALUE ...]] ...
 
 Trains, with the packaged hyperparameters of ``--algo`` for the task, one run per setting and seed through the
 ``vswrist train`` command:
 
-* ``subproc-2``: the pre-batch default: ``--vec-env subproc`` with 2 envs (a process each) and, for PPO,
-  ``n_steps`` set so that a rollout holds as many env steps as the packaged entry's;
+* ``subproc-2``: the pre-batch default: ``--vec-env subproc`` with 2 envs (a process each) and, for PPO, the
+  entry as it was before the batch (``PRE_BATCH_PPO``: 2 x 512 steps per rollout, 128-sample minibatches,
+  learning rate 3e-4), the entry most committed results were produced with;
 * ``default``: the packaged entry as it is (``vec_env: batch``: its ``n_envs`` worlds in one process);
-* ``batch-N`` (with ``--worlds N``): ``--vec-env batch`` with N worlds, PPO's ``n_steps`` scaled the same way.
+* ``batch-N`` (with ``--worlds N``): ``--vec-env batch`` with N worlds, PPO's ``n_steps`` scaled so that a
+  rollout holds as many env steps as the packaged entry's;
+* ``LABEL`` (with ``--variant LABEL KEY=VALUE ...``, repeatable): the packaged entry with those keys set (values
+  read as YAML: ``batch_size=256 learning_rate=6.0e-4``), to measure a retuned entry before it is packaged.
 
 Speed: env steps per second of training from the episode logs (Monitor/VecMonitor ``t``: seconds since the envs
 were made, so start-up is excluded; evaluation and updates are included). Returns: the mean episode return in
@@ -31,6 +36,10 @@ import tempfile
 from pathlib import Path
 
 import yaml
+
+# PPO's pre-batch entry for the VS-Wrist tasks: what `vswrist train` ran before the batched env (and what the
+# committed sweeps pin), so that the reference stays "today's default" whatever the packaged entry becomes.
+PRE_BATCH_PPO = {"n_envs": 2, "n_steps": 512, "batch_size": 128, "learning_rate": 3.0e-4}
 
 
 def episodes(run_dir: Path) -> list[tuple[float, int, float]]:
@@ -71,6 +80,8 @@ def main(argv=None) -> int:
     ap.add_argument("--timesteps", type=int, default=80000)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--worlds", type=int, default=None, help="also a batch of N worlds (PPO's n_steps scaled)")
+    ap.add_argument("--variant", nargs="+", action="append", default=[], metavar="LABEL KEY=VALUE",
+                    help="also the packaged entry with these keys set (repeatable)")
     ap.add_argument("--out", default=None, help="folder for the runs and results.json (default: a temp folder)")
     args = ap.parse_args(argv)
     from vswrist_gym import resolve_id
@@ -79,24 +90,46 @@ def main(argv=None) -> int:
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="training_speed_"))
     out.mkdir(parents=True, exist_ok=True)
 
-    from vswrist_gym.agents.hparams import CONFIG_DIR
+    from vswrist_gym.agents.hparams import CONFIG_DIR, RUN_SECTION
 
-    entry = yaml.safe_load((CONFIG_DIR / f"{args.algo}.yaml").read_text())[env_id]
+    packaged = yaml.safe_load((CONFIG_DIR / f"{args.algo}.yaml").read_text())
+    entry = packaged[env_id]
+    # the packaged run settings (evaluation and checkpoint frequencies) go with every setting, so that each does
+    # the same work beside training; the vec env is each setting's own flag
+    run_section = {k: v for k, v in packaged.get(RUN_SECTION, {}).get(env_id, {}).items() if k != "vec_env"}
+
+    def write(label: str, e: dict) -> Path:
+        path = out / f"{args.algo}_{label}.yaml"
+        doc = {env_id: e, RUN_SECTION: {env_id: run_section}} if run_section else {env_id: e}
+        path.write_text(yaml.safe_dump(doc, sort_keys=False))
+        return path
     base_envs = int(entry.get("n_envs", 1))
 
-    def with_envs(n: int, label: str) -> Path:
+    def with_envs(n: int, label: str, pre_batch: bool = False) -> Path:
         scaled = dict(entry, n_envs=n)
-        if args.algo == "ppo":  # the same env steps per rollout, so the same updates per env step
+        if args.algo == "ppo" and pre_batch:
+            scaled.update(PRE_BATCH_PPO)
+        elif args.algo == "ppo":  # the same env steps per rollout, so the same updates per env step
             scaled["n_steps"] = max(1, int(entry.get("n_steps", 2048)) * base_envs // n)
-        path = out / f"{args.algo}_{label}.yaml"
-        path.write_text(yaml.safe_dump({env_id: scaled}, sort_keys=False))
-        return path
+        return write(label, scaled)
 
-    settings = {"subproc-2": ["--vec-env", "subproc", "--config", str(with_envs(2, "subproc2"))],
+    settings = {"subproc-2": ["--vec-env", "subproc", "--config", str(with_envs(2, "subproc2", pre_batch=True))],
                 "default": []}
     if args.worlds:
         settings[f"batch-{args.worlds}"] = ["--vec-env", "batch", "--config",
                                             str(with_envs(args.worlds, f"batch{args.worlds}"))]
+
+    entry_vec_env = packaged.get(RUN_SECTION, {}).get(env_id, {}).get("vec_env", entry.get("vec_env", "batch"))
+    for label, *pairs in args.variant:
+        changed = dict(entry)
+        for pair in pairs:
+            key, sep, value = pair.partition("=")
+            if not sep or not key:
+                ap.error(f"--variant {label}: {pair!r} is not KEY=VALUE")
+            changed[key] = yaml.safe_load(value)
+        if label in settings:
+            ap.error(f"--variant {label}: that label is taken")
+        settings[label] = ["--vec-env", str(entry_vec_env), "--config", str(write(label, changed))]
 
     results = {}
     # seed by seed, the settings back to back: the machine's drift over the runs falls on every setting alike
