@@ -133,6 +133,20 @@ def test_resume_continues_the_recurrent_run(lstm_run, tmp_path):
     doc = json.loads((tmp_path / "r" / "run.json").read_text()) if res.returncode == 0 else {}
     assert (doc.get("num_timesteps", 0) >= 768, len(doc.get("commands", [])), doc.get("seed")) == (True, 2, 2), \
         res.stderr
+    # the second invocation starts where the first ended, not from step 0 (a restart would also reach 768)
+    first = json.loads((lstm_run / "run.json").read_text())["num_timesteps"]
+    assert 0 < first < 768 and doc["start_step"] == first
+
+
+def test_a_batch_of_worlds_keeps_one_state_per_world(lstm_run):
+    """The batched evaluation (the episodes of a seed as the worlds of one batch, one LSTM state per row) gives
+    the returns of the same episodes run one after another with a single state each."""
+    spec = AgentSpec(str(lstm_run))
+    records = {batch: protocol.evaluate(TASK, spec.make, [0], 3, env_kwargs=spec.env_kwargs, batch=batch)[0]
+               for batch in (True, False)}
+    returns = {batch: [r["return"] for r in recs] for batch, recs in records.items()}
+    assert len(set(returns[False])) == 3  # three different episodes, so a mixed-up row would show
+    assert returns[True] == pytest.approx(returns[False], rel=1e-6, abs=1e-6)
 
 
 def test_algorithm_and_policy_errors_name_the_allowed_values():
