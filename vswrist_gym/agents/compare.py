@@ -1,5 +1,6 @@
-"""`vswrist compare`: train (or load) PPO and SAC, evaluate them and the analytic baseline at fixed stiffness levels
-under the same seeds, print a table of means with 95 % confidence intervals over seeds, and write plots.
+"""`vswrist compare`: train (or load) PPO and SAC (`--algos` adds ppo_lstm, recurrent PPO), evaluate them and the
+analytic baseline at fixed stiffness levels under the same seeds, print a table of means with 95 % confidence
+intervals over seeds, and write plots.
 
 Seeds: the learned agents are trained once per seed (training seed s) and evaluated on the evaluation episodes of
 seed s; the analytic baseline is evaluated on the same episodes. The confidence interval is over seeds (for the

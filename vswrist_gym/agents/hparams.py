@@ -1,4 +1,5 @@
-"""Hyperparameter files for PPO and SAC in RL Zoo's format: one YAML per algorithm, keyed by environment id.
+"""Hyperparameter files for PPO, SAC and recurrent PPO (ppo_lstm) in RL Zoo's format: one YAML per algorithm, keyed
+by environment id.
 
 A shipped file loads unchanged in `python -m rl_zoo3.train --conf-file FILE` and in `vswrist train`. An entry holds
 only keys RL Zoo knows (n_timesteps, n_envs, policy, normalize, env_kwargs, policy_kwargs, frame_stack and the

@@ -1,4 +1,5 @@
-"""`vswrist train`: train a PPO or SAC posture-and-stiffness policy on a task, into a self-describing run directory.
+"""`vswrist train`: train a PPO, SAC or recurrent PPO (ppo_lstm) posture-and-stiffness policy on a task, into a
+self-describing run directory.
 
 Example: `vswrist train --task LoadHold --algo ppo --timesteps 50000 --seed 0 --out runs/loadhold_ppo_0`.
 The run directory layout is described in `vswrist_gym.agents.runs`; `--resume` continues from its last checkpoint.
