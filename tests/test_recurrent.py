@@ -149,6 +149,19 @@ def test_a_batch_of_worlds_keeps_one_state_per_world(lstm_run):
     assert returns[True] == pytest.approx(returns[False], rel=1e-6, abs=1e-6)
 
 
+def test_compare_trains_and_tables_the_recurrent_agent(tmp_path):
+    """`vswrist compare --algos ppo_lstm` trains it (its own budget flag), evaluates it on the baseline's episodes
+    and puts it in the table."""
+    res = vswrist("compare", "--task", TASK, "--algos", "ppo_lstm", "--seeds", "0", "--episodes", "1",
+                  "--ppo-lstm-timesteps", "256", "--n-envs", "2", "--stiffness", "1", "--jobs", "1",
+                  "--out", tmp_path / "cmp", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
+    assert set(summary["rows"]) == {"PPO_LSTM", "analytic:+1.00"} and summary["rows"]["PPO_LSTM"]["return"]["n"] == 1
+    run = json.loads((tmp_path / "cmp" / "runs" / "ppo_lstm_seed0" / "run.json").read_text())
+    assert run["num_timesteps"] >= 256 and "| PPO_LSTM |" in res.stdout
+
+
 def test_algorithm_and_policy_errors_name_the_allowed_values():
     with pytest.raises(hparams.ConfigError, match="ppo_lstm"):
         hparams.algo_class("lstm")
