@@ -96,7 +96,8 @@ def main(argv=None) -> int:
     entry = packaged[env_id]
     # the packaged run settings (evaluation and checkpoint frequencies) go with every setting, so that each does
     # the same work beside training; the vec env is each setting's own flag
-    run_section = {k: v for k, v in packaged.get(RUN_SECTION, {}).get(env_id, {}).items() if k != "vec_env"}
+    section = packaged.get(RUN_SECTION, {}).get(env_id, {})
+    run_section = {k: v for k, v in section.items() if k != "vec_env"}
 
     def write(label: str, e: dict) -> Path:
         path = out / f"{args.algo}_{label}.yaml"
@@ -119,7 +120,7 @@ def main(argv=None) -> int:
         settings[f"batch-{args.worlds}"] = ["--vec-env", "batch", "--config",
                                             str(with_envs(args.worlds, f"batch{args.worlds}"))]
 
-    entry_vec_env = packaged.get(RUN_SECTION, {}).get(env_id, {}).get("vec_env", entry.get("vec_env", "batch"))
+    entry_vec_env = section.get("vec_env", entry.get("vec_env", "batch"))
     for label, *pairs in args.variant:
         changed = dict(entry)
         for pair in pairs:

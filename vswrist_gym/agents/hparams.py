@@ -432,14 +432,14 @@ def resolve_entry(algo: str, env_id: str, entry: dict, source: str = "") -> RunC
     if zoo_only:
         raise ConfigError(f"{source or 'entry'} [{env_id}]: RL Zoo key(s) {zoo_only} are not supported by vswrist "
                           f"train (it takes {sorted(RUN_KEYS)} and {algo.upper()} arguments)")
-    allowed = set(inspect.signature(cls.__init__).parameters) - RESERVED_ALGO_KEYS
+    params = inspect.signature(cls.__init__).parameters
+    allowed = set(params) - RESERVED_ALGO_KEYS
     bad = sorted(set(entry) - allowed)
     if bad:
         raise ConfigError(
             f"{source or 'entry'} [{env_id}]: unknown key(s) {bad} for {algo.upper()}; allowed: "
             f"run keys {sorted(RUN_KEYS)} and {algo.upper()} arguments {sorted(allowed - {'policy_kwargs'})}"
         )
-    params = inspect.signature(cls.__init__).parameters
     for key, value in entry.items():
         _check_number(key, value, params[key].default)
     algo_kwargs = {k: parse_schedule(k, v) for k, v in entry.items()}
