@@ -6,11 +6,12 @@ warm-up steps of random actions. What is left once the physics is paid, and whic
 
 ``advance`` is the compiled call (its share above 1 is its own work beside mj_step: motor references, the sync of
 poses and sensors, the checks); ``_settle`` is the resets' settling physics (bench-env counts it as physics);
-``_reset_begin`` and ``_reset_finish`` are the resets' Python. The phases nest (``_start_resets`` holds
-``_reset_begin`` and ``_settle``), so they do not add up."""
+``_reset_begin_worlds``, ``_reset_worlds`` and ``_reset_finish`` are the resets' Python. The phases nest
+(``_start_resets`` holds ``_reset_begin_worlds``, ``_settle`` and ``_reset_worlds``), so they do not add up."""
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import time
 
@@ -26,7 +27,8 @@ acc: dict = {}
 
 
 def timed(owner, name: str) -> None:
-    fn = getattr(owner, name)
+    static = inspect.getattr_static(owner, name)
+    fn = static.__func__ if isinstance(static, classmethod) else getattr(owner, name)
 
     def wrapper(*args, **kwargs):
         t0 = time.process_time()
@@ -35,7 +37,7 @@ def timed(owner, name: str) -> None:
         finally:
             acc[name] = acc.get(name, 0.0) + time.process_time() - t0
 
-    setattr(owner, name, wrapper)
+    setattr(owner, name, classmethod(wrapper) if isinstance(static, classmethod) else wrapper)
 
 
 def main(argv=None) -> int:
@@ -48,7 +50,7 @@ def main(argv=None) -> int:
         os.sched_setaffinity(0, {1})
     for name in ("_finish", "_begin", "_start_resets", "_end_reset", "_vector_info", "_after_native"):
         timed(B.VSWristVectorEnv, name)
-    for name in ("_reset_begin", "_settle", "_reset_finish"):
+    for name in ("_reset_begin_worlds", "_reset_worlds", "_settle", "_reset_finish"):
         timed(base.VSWristEnv, name)
     timed(advance_lib, "advance")
     env_id = LATEST.get(args.task, args.task)

@@ -132,3 +132,28 @@ def test_motor_side_angles_are_the_full_inverse_kinematics_q1():
         T = kin.coupler_pose(u)
         for leg in range(3):
             np.testing.assert_allclose(kin.leg_forward(q[4 * leg:4 * leg + 4], leg)[:3, 3], T[:3, 3], atol=1e-12)
+
+
+def test_a_stack_of_postures_gives_each_postures_numbers(kin):
+    """The kinematics takes leading axes (a batch's resets compute all their postures in one pass): each row of a
+    stacked call is the single posture's result, to the bit on one machine (stacked matmul and solve make the
+    same BLAS/LAPACK call per matrix); 1e-13 across machines. Independent check: the stacked basis is a unit
+    null vector of each posture's J_a^T."""
+    U = random_postures(kin, 40, seed=11)
+    stacked = {"joint_angles": kin.joint_angles(U), "ik_jacobian": kin.ik_jacobian(U),
+               "internal_torque_basis": kin.internal_torque_basis(U), "coupler_pose": kin.coupler_pose(U),
+               "motor_side_angles": kin.motor_side_angles(U)}
+    for name, many in stacked.items():
+        one = np.array([getattr(kin, name)(u) for u in U])
+        assert many.shape == one.shape, name
+        np.testing.assert_allclose(many, one, rtol=0, atol=1e-13, err_msg=name)
+    Ja = stacked["ik_jacobian"][:, 0::4, :]
+    N = stacked["internal_torque_basis"]
+    np.testing.assert_allclose(np.einsum("nk,nki->ni", N, Ja), 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(N, axis=1), 1.0, atol=1e-14)
+    assert (N < 0).all()  # the sign convention, every posture of the range of motion
+    # a bad row is named
+    bad = U.copy()
+    bad[7, 1] = 3.0
+    with pytest.raises(RangeOfMotionError, match="posture 7"):
+        kin.joint_angles(bad)

@@ -139,27 +139,42 @@ class WristSim:
         The motors stand at ``stiffness.motor_references(u, lam)`` (references and filter states too), so the
         springs carry exactly lam N; the applied wrench is cleared. Gravity, if on, acts from here on.
         """
-        u = self.kin.check_posture(np.asarray(u, dtype=float))
-        ps = float(ps)
-        if not (self._ps_range[0] <= ps <= self._ps_range[1]):
-            raise RangeOfMotionError(f"ps = {ps:.4f} rad is outside the range of motion "
-                                     f"[{self._ps_range[0]:.4f}, {self._ps_range[1]:.4f}] rad")
+        WristSim.reset_many([self], [u], [ps], [lam])
+
+    @staticmethod
+    def reset_many(sims: list, u, ps, lam) -> None:
+        """``reset`` of many simulators of one geometry (a batch's worlds that reset together): sims[k] at
+        posture u[k], PS angle ps[k], internal torque lam[k]. The kinematics (joint angles, internal-torque
+        basis) of all postures is one pass of NumPy calls over the stack, the same numbers as one by one."""
+        kin = sims[0].kin
+        if any(s.kin.params.geometry != kin.params.geometry for s in sims):
+            for s, uk, pk, lk in zip(sims, u, ps, lam):
+                WristSim.reset_many([s], [uk], [pk], [lk])
+            return
+        U = np.array([s.kin.check_posture(np.asarray(uk, dtype=float)) for s, uk in zip(sims, u)])
+        PS = [float(p) for p in ps]
+        for s, p in zip(sims, PS):
+            if not (s._ps_range[0] <= p <= s._ps_range[1]):
+                raise RangeOfMotionError(f"ps = {p:.4f} rad is outside the range of motion "
+                                         f"[{s._ps_range[0]:.4f}, {s._ps_range[1]:.4f}] rad")
         # q1 and N once, for both the range check and the motor references (each would compute N again)
-        q = self.kin.joint_angles(u)
-        terms = PostureTerms(u=u, q1=q[0::4], Ja=None, N=self.kin.internal_torque_basis(u), Ha=None)
-        lo, hi = lambda_range(u, self.params, terms=terms)
-        lam = float(lam)
-        if not (lo - 1e-9 <= lam <= hi + 1e-9):
-            raise ValueError(f"lam = {lam:.6g} N m is outside the range the motor torque and deflection limits "
-                             f"allow at u = {u}: [{lo:.6g}, {hi:.6g}] N m")
-        m, d = self.model, self.data
-        mujoco.mj_resetDataKeyframe(m, d, 0)
-        theta = np.append(motor_references(u, lam, self.params, terms=terms), ps)
-        d.qpos[self._qadr_legs] = q
-        d.qpos[self._qadr_motor] = theta
-        d.ctrl[self._act_ids] = theta
-        d.act[self._act_adr] = theta
-        self._forward()
+        Q = kin.joint_angles(U)
+        N = kin.internal_torque_basis(U)
+        for s, uk, q, nk, p, lk in zip(sims, U, Q, N, PS, lam):
+            terms = PostureTerms(u=uk, q1=q[0::4], Ja=None, N=nk, Ha=None)
+            lo, hi = lambda_range(uk, s.params, terms=terms)
+            lk = float(lk)
+            if not (lo - 1e-9 <= lk <= hi + 1e-9):
+                raise ValueError(f"lam = {lk:.6g} N m is outside the range the motor torque and deflection limits "
+                                 f"allow at u = {uk}: [{lo:.6g}, {hi:.6g}] N m")
+            m, d = s.model, s.data
+            mujoco.mj_resetDataKeyframe(m, d, 0)
+            theta = np.append(motor_references(uk, lk, s.params, terms=terms), p)
+            d.qpos[s._qadr_legs] = q
+            d.qpos[s._qadr_motor] = theta
+            d.ctrl[s._act_ids] = theta
+            d.act[s._act_adr] = theta
+            s._forward()
 
     def get_state(self) -> np.ndarray:
         """Everything needed for an exact restart (MuJoCo's integration state: time, qpos, qvel, act,

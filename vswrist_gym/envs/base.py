@@ -277,18 +277,29 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
     # the other worlds' physics: ``_reset_begin`` (the episode's draws, the initial state and references),
     # ``_settle`` (the physics only: touches nothing but this world's MjModel/MjData) and ``_reset_finish``.
     def _reset_begin(self, seed: int | None) -> None:
-        if seed is None:
-            self._rewind_unread_noise()
-        super().reset(seed=seed)
-        self._reset_state()
-        self._randomize()
-        u0, ps0, s0 = self._task_reset(self.np_random)
-        lam0 = self.stiffness_map.to_lam(s0)
-        self.sim.reset(u=tuple(u0), ps=float(ps0), lam=lam0)
-        self.ctrl.reset(posture=(float(u0[0]), float(u0[1]), float(ps0)), lam=lam0)
-        self.sim.apply_wrench(np.zeros(3), np.zeros(3))
-        if self.cfg["settle_s"] > 0.0:
-            self.sim.set_motor_references(self.ctrl.step(np.array([u0[0], u0[1], ps0]), lam=lam0))
+        type(self)._reset_begin_worlds([self], [seed])
+
+    @classmethod
+    def _reset_begin_worlds(cls, worlds: list, seeds: list) -> None:
+        """``_reset_begin`` of ``worlds`` (of this task) with ``seeds``: each world's draws from its own
+        generator, then the simulators' initial states in one call (``WristSim.reset_many``: the kinematics of
+        all their postures over arrays, what a reset costs most)."""
+        draws = []
+        for e, seed in zip(worlds, seeds):
+            if seed is None:
+                e._rewind_unread_noise()
+            gym.Env.reset(e, seed=seed)
+            e._reset_state()
+            e._randomize()
+            u0, ps0, s0 = e._task_reset(e.np_random)
+            draws.append((u0, float(ps0), e.stiffness_map.to_lam(s0)))
+        worlds[0]._WristSim.reset_many([e.sim for e in worlds], [tuple(d[0]) for d in draws],
+                                       [d[1] for d in draws], [d[2] for d in draws])
+        for e, (u0, ps0, lam0) in zip(worlds, draws):
+            e.ctrl.reset(posture=(float(u0[0]), float(u0[1]), ps0), lam=lam0)
+            e.sim.apply_wrench(np.zeros(3), np.zeros(3))
+            if e.cfg["settle_s"] > 0.0:
+                e.sim.set_motor_references(e.ctrl.step(np.array([u0[0], u0[1], ps0]), lam=lam0))
 
     def _settle(self) -> None:
         """Let the wrist settle under gravity at the initial references (the simulator starts at rest at the

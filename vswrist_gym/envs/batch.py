@@ -261,17 +261,19 @@ class VSWristVectorEnv(VectorEnv):
         """Begin the resets of ``worlds`` (with ``seeds[i]``, or none: their generators go on) and settle
         them: on the pool, beside whatever runs next, or at once without threads. ``started``: world ->
         its settling's future (None: settled), for ``_end_reset``."""
+        if not worlds:
+            return
         pool = self._pool
-        for i in worlds:
-            e = self.envs[i]
-            e._reset_begin(None if seeds is None else seeds[i])
+        ws = [self.envs[i] for i in worlds]
+        cls = type(ws[0])
+        cls._reset_begin_worlds(ws, [None if seeds is None else seeds[i] for i in worlds])
+        for i, e in zip(worlds, ws):
             if pool is None:
                 e._settle()
                 started[i] = None
             else:
                 started[i] = pool.submit(e._settle)
-        if worlds:  # the task's set-up over the worlds that reset together, beside their settling
-            type(self.envs[worlds[0]])._reset_worlds([self.envs[i] for i in worlds])
+        cls._reset_worlds(ws)  # the task's set-up over the worlds that reset together, beside their settling
 
     def _end_reset(self, i: int, started: dict):
         """World i's reset, begun by ``_start_resets``: waits for its settling, then the single env's last
