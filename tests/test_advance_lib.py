@@ -96,3 +96,30 @@ def test_the_pool_runs_only_released_chunks_and_leaves_kept_ones():
         assert all(d.time == pytest.approx(2 * good.opt.timestep) for d in datas)
     finally:
         pool.close()
+
+
+def test_the_gather_copies_what_its_plan_names_from_each_world():
+    """The gather (``plan``/``out``): after the substeps, world k's row of ``out`` holds the named slices of its
+    MjData and its closure peak, in plan order; a world whose step failed is left unwritten. Checked against the
+    MjData arrays read through the bindings."""
+    bad = _failing_model()
+    good = mujoco.MjModel.from_xml_string(_crowded(1_000_000))
+    datas = [mujoco.MjData(good), mujoco.MjData(bad), mujoco.MjData(good)]
+    peaks = [np.ones(1), np.ones(1), np.ones(1)]
+    h = np.vstack([_table(good, datas[:1], peaks[:1]), _table(bad, datas[1:2], peaks[1:2]),
+                   _table(good, datas[2:], peaks[2:])])
+    datas[2].qvel[2] = 0.3  # the two good worlds differ
+    A = advance_lib
+    plan = np.array([(A.F_QPOS, 7, 7), (A.F_QVEL, 2, 3), (A.F_XPOS, 3 * 4, 3), (A.F_XQUAT, 4 * 2, 4),
+                     (A.F_XMAT, 9 * 3, 9), (A.F_CVEL, 6 * 5, 6), (A.F_PEAK, 0, 1)], dtype=np.int32)
+    out = np.full((3, int(plan[:, 2].sum())), -7.0)
+    status = np.full(3, -1, dtype=np.int32)
+    A.advance(LIB, h, np.array([0, 1, 2], dtype=np.int32), np.zeros((3, 4)), np.zeros(4, dtype=np.int32), 3,
+              A.SYNC_KINEMATICS, status, None, plan, out)
+    assert status.tolist() == [A.OK, A.MUJOCO_ERROR, A.OK]
+    for k in (0, 2):
+        d = datas[k]
+        want = np.concatenate([d.qpos[7:14], d.qvel[2:5], d.xpos[4], d.xquat[2], d.xmat[3], d.cvel[5], peaks[k]])
+        np.testing.assert_array_equal(out[k], want)
+    assert not np.array_equal(out[0], out[2])
+    assert (out[1] == -7.0).all()

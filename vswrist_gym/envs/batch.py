@@ -25,8 +25,9 @@ works per world). One ``step`` of the batch:
    each world runs ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads``
    threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
    only contend for the GIL: the batch then steps serially;
-5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure: gathered
-   from the MjData into (N, .) arrays, the tool wrench too), its reference (a row of the table its reset
+5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool
+   wrench: what ``_gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics
+   threads, or in Python without it), its reference (a row of the table its reset
    computed: ``_reference`` is written over arrays of times), its task hooks (``_contact_force``,
    ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own
    generator, in the single env's order) run world by world; the measures' math, divergence checks, the common
@@ -209,6 +210,7 @@ class VSWristVectorEnv(VectorEnv):
         self._handles = np.zeros((self.num_envs, advance_lib.HANDLE_COLUMNS), dtype=np.uint64)
         self._handle_sims: list = [None] * self.num_envs
         self._blocked = np.zeros(self.num_envs, dtype=bool)  # worlds the compiled advance cannot step
+        self._plan, self._cols = self._gather_plan(first)
         # CPU seconds inside the worlds' mj_step substeps (the compiled path), summed while not None (benchmarks)
         self.physics_seconds: float | None = None
         self.set_threads(threads)
@@ -357,6 +359,8 @@ class VSWristVectorEnv(VectorEnv):
         widx = np.asarray(idx, dtype=np.int32)
         status = np.zeros(L, dtype=np.int32)
         seconds = None if self.physics_seconds is None else np.zeros(L)
+        G = None if per_world else np.empty((L, self._plan[:, 2].sum()))  # the gather (``_gather_plan``)
+        plan = None if per_world else self._plan
         lib = self._advance_fn
         parts: list = []  # (positions in idx, _finish's results for those worlds)
         A = None  # the clipped actions, once ``_begin`` has run for every world
@@ -366,7 +370,7 @@ class VSWristVectorEnv(VectorEnv):
             self._after_native(ws, [idx[p] for p in pos], status[pos])
             if per_world:
                 return
-            part = self._finish(ws, A[pos])
+            part = self._finish(ws, A[pos], G[pos])
             parts.append((pos, part))
             if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
                 self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
@@ -385,7 +389,7 @@ class VSWristVectorEnv(VectorEnv):
             if meanwhile is not None:
                 meanwhile()
             advance_lib.advance(lib, self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status,
-                                seconds)
+                                seconds, plan, G)
             finish(list(range(L)))
         else:
             bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
@@ -397,7 +401,7 @@ class VSWristVectorEnv(VectorEnv):
             if pool is None or pool.pid != os.getpid():  # made here: threads do not survive a fork
                 pool = self._cpool = advance_lib.Pool(lib, self.threads - 1)
             pool.submit(self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status, seconds, bounds,
-                        released=self.threads - 1)
+                        released=self.threads - 1, plan=plan, out=G)
             todo = np.ones(k, dtype=bool)
             try:
                 if meanwhile is not None:
@@ -631,10 +635,11 @@ class VSWristVectorEnv(VectorEnv):
             type(first)._before_physics_worlds(worlds, np.array([e._t for e in worlds]))
         return A, theta
 
-    def _finish(self, worlds: list, A: np.ndarray):
-        """``VSWristEnv._finish_step`` of the live worlds: each world's simulator and task hooks are read
-        world by world (in the single env's order, so each draws its noise from its own generator as it
-        would alone); the measures' math, rewards, observation and info run over arrays."""
+    def _finish(self, worlds: list, A: np.ndarray, G: np.ndarray | None = None):
+        """``VSWristEnv._finish_step`` of the live worlds: the simulators' reads come gathered in ``G`` (rows of
+        ``_gather_plan``, filled by the compiled advance; None: gathered here), the task hooks run world by
+        world (in the single env's order, so each draws its noise from its own generator as it would alone);
+        the measures' math, rewards, observation and info run over arrays."""
         first = worlds[0]
         L = len(worlds)
         dt = first.ctrl_dt
@@ -647,14 +652,20 @@ class VSWristVectorEnv(VectorEnv):
             e._step += 1
             e._t = e._step * dt
         sims = [e.sim for e in worlds]
+        redo = []
         for k in range(L):
             if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure does
                 if light:
                     sims[k].sync_kinematics()
                 sims[k].posture()
+                redo.append(k)
+        if G is None:
+            G = self._gather(sims)
+        elif redo:
+            G[redo] = self._gather([sims[k] for k in redo])
         if hook_contact:
             contact = [e._contact_force() for e in worlds]
-        P, D, Q = self._read_posture(sims)
+        P, D, Q = self._read_posture(G)
         bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
         failures: dict[int, str] = {}
         for k, e in enumerate(worlds):
@@ -662,7 +673,7 @@ class VSWristVectorEnv(VectorEnv):
                 failed[k] = f"non-finite state at t = {e._t:.3f} s"
             if failed[k] is not None:
                 failures[k] = failed[k]
-        closure = self._read_closure(sims, light)
+        closure = self._read_closure(G, sims, light)
         for k in failures:
             # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
             e = worlds[k]
@@ -671,7 +682,8 @@ class VSWristVectorEnv(VectorEnv):
             e.sim.apply_wrench(np.zeros(3), np.zeros(3))
             e._measure()
             P[k], D[k], contact[k] = e._posture, e._defl, e._contact
-            Q[k] = e.sim._qpos
+            G[k] = self._gather([e.sim])[0]  # what the observation reads: the clean state
+            Q[k] = G[k, self._cols["qpos"]]
         K = np.array([e.params.spring.K for e in worlds])[:, None]
         d0 = np.array([e.params.spring.delta0 for e in worlds])[:, None]
         law = SpringLaw(K, d0)  # each world's own springs
@@ -710,7 +722,7 @@ class VSWristVectorEnv(VectorEnv):
         NZ = np.array(nz_rows) if noise else None
         for vals, (a, b, name) in zip(term_vals, world_terms):
             if name == "tool_wrench":
-                raw[:, a:b] = self._read_tool_wrench(sims)
+                raw[:, a:b] = self._read_tool_wrench(G)
             elif b - a == 1:
                 raw[:, a] = np.array(vals, dtype=float).reshape(L)
             else:
@@ -754,7 +766,7 @@ class VSWristVectorEnv(VectorEnv):
         # observation (ObservationsMixin._observation over arrays)
         for a, b, name in self._array_terms:
             if name == "posture_rate":
-                raw[:, a:b] = self._read_posture_rate(sims, P)
+                raw[:, a:b] = self._read_posture_rate(G, P)
                 if NZ is not None:
                     raw[:, a:b] += NZ[:, 3:6]
             elif name == "motor_angles":
@@ -810,71 +822,105 @@ class VSWristVectorEnv(VectorEnv):
         cols["posture_error_vec"] = err
         return raw.astype(np.float32), reward, terminated, truncated, cols, failures
 
-    # The simulator reads of the step, gathered from every world's MjData into arrays (the worlds' models
-    # share one layout) and computed as ``WristSim.posture``/``deflections``/``posture_rate``/
-    # ``loop_closure_peak`` compute them, with math's asin/atan2 element by element as those do.
-    @staticmethod
-    def _read_posture(sims: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    # The simulator reads of the step: what ``_gather_plan`` names, copied from every world's MjData into one row
+    # per world (by the compiled advance on the physics threads, or by ``_gather``), and computed as
+    # ``WristSim.posture``/``deflections``/``posture_rate``/``loop_closure_peak``/``tool_wrench`` compute them,
+    # with math's asin/atan2 element by element as those do.
+    def _gather_plan(self, first) -> tuple[np.ndarray, dict]:
+        """The gather's plan (int32 rows of ``advance_lib`` field, start, count) and each read's columns."""
+        H = advance_lib
+        s0 = first.sim
+        rows: list = []
+        cols: dict[str, slice] = {}
+
+        def add(name: str, field: int, start: int, count: int) -> None:
+            c = sum(r[2] for r in rows)
+            rows.append((field, start, count))
+            cols[name] = slice(c, c + count)
+
+        add("qpos", H.F_QPOS, 0, s0.model.nq)
+        add("coupler_xmat", H.F_XMAT, 9 * s0.coupler_id, 9)
+        add("coupler_cvel", H.F_CVEL, 6 * s0.coupler_id, 6)
+        add("ps_rate", H.F_QVEL, s0._vadr_ps, 1)
+        add("peak", H.F_PEAK, 0, 1)
+        if first._light_sync:  # the weld violation at the end of the period (``_read_closure``)
+            for b in [s0.coupler_id] + list(s0._end_ids):
+                add(f"xpos{b}", H.F_XPOS, 3 * b, 3)
+                add(f"xquat{b}", H.F_XQUAT, 4 * b, 4)
+        if "tool_wrench" in first.cfg["observation"]:
+            add("tool_R", H.F_SITE_XMAT, 9 * s0._tool_site, 9)
+            add("tool_f", H.F_SENSOR, s0._force_adr, 3)
+            add("tool_t", H.F_SENSOR, s0._torque_adr, 3)
+        return np.array(rows, dtype=np.int32).reshape(-1, 3), cols
+
+    def _gather(self, sims: list) -> np.ndarray:
+        """The gather of ``sims`` in Python (worlds the compiled advance did not step or read), from their
+        synced MjData."""
+        H = advance_lib
+        names = {H.F_QPOS: "qpos", H.F_QVEL: "qvel", H.F_XPOS: "xpos", H.F_XQUAT: "xquat", H.F_XMAT: "xmat",
+                 H.F_CVEL: "cvel", H.F_SENSOR: "sensordata", H.F_SITE_XMAT: "site_xmat"}
+        G = np.empty((len(sims), int(self._plan[:, 2].sum())))
+        for k, s in enumerate(sims):
+            parts = [s._closure_peak if f == H.F_PEAK else getattr(s.data, names[f]).reshape(-1)[a:a + n]
+                     for f, a, n in self._plan.tolist()]
+            G[k] = np.concatenate(parts)
+        return G
+
+    def _read_posture(self, G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Measured postures (N, 3) and spring deflections (N, 3) (``WristSim.posture``, ``deflections``), and
         the joint positions they come from (N, nq)."""
-        s0 = sims[0]
-        Q = np.array([s._qpos for s in sims])
-        X = np.array([s._coupler_xmat for s in sims])
+        s0 = self.envs[0].sim
+        Q = G[:, self._cols["qpos"]]
+        X = G[:, self._cols["coupler_xmat"]]
         asin, atan2 = math.asin, math.atan2
-        P = np.empty((len(sims), 3))
+        P = np.empty((len(G), 3))
         P[:, 0] = [asin(max(-1.0, min(1.0, -r6))) for r6 in X[:, 6].tolist()]
         P[:, 1] = [atan2(r3, r0) for r3, r0 in zip(X[:, 3].tolist(), X[:, 0].tolist())]
         P[:, 2] = Q[:, s0._qadr_ps]
         return P, Q[:, s0._qadr_q1] - Q[:, s0._qadr_m3], Q
 
-    @staticmethod
-    def _read_tool_wrench(sims: list) -> np.ndarray:
+    def _read_tool_wrench(self, G: np.ndarray) -> np.ndarray:
         """``WristSim.tool_wrench`` of every world (N, 6): the tool's force/torque sensors rotated to the base."""
-        for s in sims:
-            if s._stale or s._light:
-                s._forward()
-        R = np.array([s._tool_R for s in sims])
-        FT = np.array([(s._tool_f, s._tool_t) for s in sims])  # (N, 2, 3)
-        return np.matmul(R[:, None], FT[:, :, :, None]).reshape(len(sims), 6)
+        c = self._cols
+        R = G[:, c["tool_R"]].reshape(len(G), 3, 3)
+        FT = np.stack([G[:, c["tool_f"]], G[:, c["tool_t"]]], axis=1)  # (N, 2, 3)
+        return np.matmul(R[:, None], FT[:, :, :, None]).reshape(len(G), 6)
 
-    @staticmethod
-    def _read_posture_rate(sims: list, P: np.ndarray) -> np.ndarray:
+    def _read_posture_rate(self, G: np.ndarray, P: np.ndarray) -> np.ndarray:
         """d/dt of the postures (N, 3) (``WristSim.posture_rate``; P: the postures just read)."""
-        s0 = sims[0]
-        C = np.array([s._coupler_cvel for s in sims])
-        V = np.array([s._qvel for s in sims])
+        C = G[:, self._cols["coupler_cvel"]]
         wx, wy, wz = C[:, 0], C[:, 1], C[:, 2]
         ay, az = P[:, 0], P[:, 1]
         sz, cz = np.sin(az), np.cos(az)
         ax_rate = (cz * wx + sz * wy) / np.cos(ay)
-        out = np.empty((len(sims), 3))
+        out = np.empty((len(G), 3))
         out[:, 0] = -sz * wx + cz * wy
         out[:, 1] = wz + np.sin(ay) * ax_rate
-        out[:, 2] = V[:, s0._vadr_ps]
+        out[:, 2] = G[:, self._cols["ps_rate"]][:, 0]
         return out
 
-    @staticmethod
-    def _read_closure(sims: list, light: bool) -> list:
+    def _read_closure(self, G: np.ndarray, sims: list, light: bool) -> list:
         """``WristSim.loop_closure_peak`` of every world (after ``_advance`` synced it). After a light sync the
         monitor has not seen the final state: its weld violation (``native.weld_violation``) over arrays."""
+        c = self._cols
+        peak = G[:, c["peak"]][:, 0]
+        stale = [k for k, s in enumerate(sims) if s._stale or s._light != light]
         if not light:
-            return [s.loop_closure_peak() for s in sims]
-        s0 = sims[0]
-        c, ends = s0.coupler_id, s0._end_ids
-        XP = np.array([s._xpos for s in sims])
-        XQ = np.array([s._xquat for s in sims])
-        worst = np.zeros(len(sims))
-        qc = XQ[:, c]
-        for e in ends:
-            dx, dy, dz = (XP[:, e, j] - XP[:, c, j] for j in range(3))
-            q = XQ[:, e]
-            dot = np.abs(qc[:, 0] * q[:, 0] + qc[:, 1] * q[:, 1] + qc[:, 2] * q[:, 2] + qc[:, 3] * q[:, 3])
-            worst = np.maximum(worst, np.maximum(np.sqrt(dx * dx + dy * dy + dz * dz),
-                                                 2.0 * np.arccos(np.minimum(1.0, dot))))
-        peak = np.array([s._closure_peak[0] for s in sims])
-        stale = [k for k, s in enumerate(sims) if s._stale or not s._light]
-        out = np.where(worst > peak, worst, peak).tolist()
-        for k in stale:  # not synced lightly (a failed step): the world's own accessor
+            out = peak.tolist()
+        else:
+            s0 = sims[0]
+            cid = s0.coupler_id
+            qc = G[:, c[f"xquat{cid}"]]
+            pc = G[:, c[f"xpos{cid}"]]
+            worst = np.zeros(len(G))
+            for e in s0._end_ids:
+                pe, q = G[:, c[f"xpos{e}"]], G[:, c[f"xquat{e}"]]
+                dx, dy, dz = (pe[:, j] - pc[:, j] for j in range(3))
+                dot = np.abs(qc[:, 0] * q[:, 0] + qc[:, 1] * q[:, 1] + qc[:, 2] * q[:, 2] + qc[:, 3] * q[:, 3])
+                worst = np.maximum(worst, np.maximum(np.sqrt(dx * dx + dy * dy + dz * dz),
+                                                     2.0 * np.arccos(np.minimum(1.0, dot))))
+            out = np.where(worst > peak, worst, peak).tolist()
+        for k in stale:  # not synced as the advance syncs (a failed step): the world's own accessor
             out[k] = sims[k].loop_closure_peak()
         return out
 

@@ -14,6 +14,9 @@ references into ``ctrl``, zero the loop-closure peak and the contact meter's win
 ``mj_step``, the divergence check on MuJoCo's NaN warnings (a diverged world is left as MuJoCo reset it,
 unsynced, as ``WristSim.step`` raises before its sync), then the sync: ``mj_kinematics`` + ``mj_comPos`` +
 ``mj_comVel`` (``sync_kinematics``) or ``mj_forward`` with the sensors enabled (``WristSim._forward``).
+Then, with a gather plan, it copies what the environment reads after the step (joint positions, the coupler's
+pose and velocity, the loop-closure bodies, sensors: ``VSWristVectorEnv._gather_plan``) into the world's row of
+one array, on the world's thread, so that the batch reads every world's simulator in one NumPy array.
 
 An error MuJoCo raises inside a world (``mju_error``) is intercepted as the Python bindings intercept it (a
 thread-local log handler that jumps back to the world's ``setjmp``): that world's status says so and the
@@ -41,6 +44,10 @@ HANDLE_COLUMNS = 5
 OK, DIVERGED, MUJOCO_ERROR = 0, 1, 2
 
 SYNC_NONE, SYNC_KINEMATICS, SYNC_FORWARD = 0, 1, 2
+
+# what a gather plan (``plan``: rows of (field, start, count)) copies from each synced world into its row of ``out``:
+# MjData arrays (flattened: xpos[b] starts at 3 b) and the loop-closure peak (start and count 0, 1)
+F_QPOS, F_QVEL, F_XPOS, F_XQUAT, F_XMAT, F_CVEL, F_SENSOR, F_SITE_XMAT, F_PEAK = range(9)
 
 SOURCE = r"""
 #include <stdint.h>
@@ -73,13 +80,29 @@ static double thread_seconds(void) {
   return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* Copies what plan names (nplan rows of field, start, count) from a synced world into its row of out. */
+static void gather(const mjData* d, const uint64_t* row, const int32_t* plan, int nplan, double* out) {
+  for (int p = 0; p < nplan; p++) {
+    const int32_t f = plan[3 * p], start = plan[3 * p + 1], n = plan[3 * p + 2];
+    const mjtNum* src = f == @F_QPOS@ ? d->qpos : f == @F_QVEL@ ? d->qvel : f == @F_XPOS@ ? d->xpos
+                      : f == @F_XQUAT@ ? d->xquat : f == @F_XMAT@ ? d->xmat : f == @F_CVEL@ ? d->cvel
+                      : f == @F_SENSOR@ ? d->sensordata : f == @F_SITE_XMAT@ ? d->site_xmat
+                      : (const mjtNum*)(uintptr_t)row[@PEAK@];
+    memcpy(out, src + start, sizeof(mjtNum) * n);
+    out += n;
+  }
+}
+
 /* worlds[0..count): rows of the handle table h (stride HANDLE_COLUMNS); theta: count x 4 motor references in
    the order of worlds; ctrl_idx: the 4 ctrl addresses (the same layout in every world); status: count
-   results; step_seconds: NULL, or count accumulators of the thread CPU time inside mj_step. Returns the number
-   of worlds whose status is not OK. */
+   results; step_seconds: NULL, or count accumulators of the thread CPU time inside mj_step; plan/out: NULL,
+   or the gather plan and count rows of out_cols doubles, written for the worlds whose status is OK (what the
+   environment reads after the step, copied here on the world's thread instead of world by world in Python).
+   Returns the number of worlds whose status is not OK. */
 extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int count, const double* theta,
                                const int32_t* ctrl_idx, int nstep, int sync, int32_t* status,
-                               double* step_seconds) {
+                               double* step_seconds, const int32_t* plan, int nplan, double* out,
+                               int out_cols) {
   volatile int nbad = 0;
   jmp_buf jump;
   mjfLogHandler previous = _mjPRIVATE_setTlsLogHandler(on_log);
@@ -116,6 +139,7 @@ extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int cou
         mj_forward(m, d);
         m->opt.disableflags |= mjDSBL_SENSOR;
       }
+      if (out) gather(d, row, plan, nplan, out + (int64_t)k * out_cols);
     }
   }
   tls_jump = NULL;
@@ -134,6 +158,7 @@ extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int cou
 struct Job {
   const uint64_t* h; const int32_t* worlds; const double* theta; const int32_t* ctrl_idx;
   int nstep, sync; int32_t* status; double* seconds; const int32_t* bounds; int nchunks, released;
+  const int32_t* plan; int nplan; double* out; int out_cols;
 };
 
 struct Pool {
@@ -151,7 +176,8 @@ struct Pool {
     lk.unlock();
     int lo = j.bounds[c], hi = j.bounds[c + 1];
     vswrist_advance(j.h, j.worlds + lo, hi - lo, j.theta + 4 * lo, j.ctrl_idx, j.nstep, j.sync, j.status + lo,
-                    j.seconds ? j.seconds + lo : NULL);
+                    j.seconds ? j.seconds + lo : NULL, j.plan, j.nplan,
+                    j.out ? j.out + (int64_t)lo * j.out_cols : NULL, j.out_cols);
     lk.lock();
     done[c] = 1;
     ndone++;
@@ -187,12 +213,13 @@ extern "C" void vswrist_pool_free(void* pool) {
 
 extern "C" void vswrist_pool_submit(void* pool, const uint64_t* h, const int32_t* worlds, const double* theta,
                                     const int32_t* ctrl_idx, int nstep, int sync, int32_t* status,
-                                    double* seconds, const int32_t* bounds, int nchunks, int released) {
+                                    double* seconds, const int32_t* bounds, int nchunks, int released,
+                                    const int32_t* plan, int nplan, double* out, int out_cols) {
   Pool* p = (Pool*)pool;
   {
     std::lock_guard<std::mutex> lk(p->mu);
     p->job = Job{h, worlds, theta, ctrl_idx, nstep, sync, status, seconds, bounds, nchunks,
-                 released < nchunks ? released : nchunks};
+                 released < nchunks ? released : nchunks, plan, nplan, out, out_cols};
     p->next = 0;
     p->ndone = 0;
     p->done.assign(nchunks, 0);
@@ -242,7 +269,9 @@ extern "C" void vswrist_pool_wait(void* pool, int c) {
 """
 for _key, _value in {"COLUMNS": HANDLE_COLUMNS, "MODEL": H_MODEL, "DATA": H_DATA, "PEAK": H_PEAK, "METER": H_METER,
                      "METER_SIZE": H_METER_SIZE, "OK": OK, "DIVERGED": DIVERGED, "MUJOCO_ERROR": MUJOCO_ERROR,
-                     "SYNC_KINEMATICS": SYNC_KINEMATICS, "SYNC_FORWARD": SYNC_FORWARD}.items():
+                     "SYNC_KINEMATICS": SYNC_KINEMATICS, "SYNC_FORWARD": SYNC_FORWARD, "F_QPOS": F_QPOS,
+                     "F_QVEL": F_QVEL, "F_XPOS": F_XPOS, "F_XQUAT": F_XQUAT, "F_XMAT": F_XMAT, "F_CVEL": F_CVEL,
+                     "F_SENSOR": F_SENSOR, "F_SITE_XMAT": F_SITE_XMAT}.items():
     SOURCE = SOURCE.replace(f"@{_key}@", str(_value))
 
 _lib = None  # the loaded library's function, False where it cannot be built
@@ -266,13 +295,13 @@ def load():
                 pass
             else:
                 p, i = ctypes.c_void_p, ctypes.c_int
-                lib.vswrist_advance.argtypes = [p, p, i, p, p, i, i, p, p]
+                lib.vswrist_advance.argtypes = [p, p, i, p, p, i, i, p, p, p, i, p, i]
                 lib.vswrist_advance.restype = i
                 lib.vswrist_pool_new.argtypes = [i]
                 lib.vswrist_pool_new.restype = p
                 lib.vswrist_pool_free.argtypes = [p]
                 lib.vswrist_pool_free.restype = None
-                lib.vswrist_pool_submit.argtypes = [p, p, p, p, p, i, i, p, p, p, i, i]
+                lib.vswrist_pool_submit.argtypes = [p, p, p, p, p, i, i, p, p, p, i, i, p, i, p, i]
                 lib.vswrist_pool_submit.restype = None
                 lib.vswrist_pool_release.argtypes = [p, i]
                 lib.vswrist_pool_release.restype = None
@@ -291,12 +320,23 @@ def _ptr(a: np.ndarray | None) -> int:
 
 
 def advance(lib, handles: np.ndarray, worlds: np.ndarray, theta: np.ndarray, ctrl_idx: np.ndarray, nstep: int,
-            sync: int, status: np.ndarray, step_seconds: np.ndarray | None = None) -> int:
+            sync: int, status: np.ndarray, step_seconds: np.ndarray | None = None, plan: np.ndarray | None = None,
+            out: np.ndarray | None = None) -> int:
     """One call over ``worlds`` (int32, indices into ``handles``) on the calling thread; ``theta``
     (len(worlds), 4) float64 C-contiguous, ``status`` int32 of len(worlds), written; ``step_seconds``: None or
-    float64 accumulators per world. Returns the number of worlds not OK."""
+    float64 accumulators per world; ``plan`` (int32 (k, 3)) and ``out`` (float64 C-contiguous (len(worlds),
+    columns)): the gather. Returns the number of worlds not OK."""
     return lib.vswrist_advance(handles.ctypes.data, worlds.ctypes.data, len(worlds), theta.ctypes.data,
-                               ctrl_idx.ctypes.data, nstep, sync, status.ctypes.data, _ptr(step_seconds))
+                               ctrl_idx.ctypes.data, nstep, sync, status.ctypes.data, _ptr(step_seconds),
+                               *_gather_args(plan, out))
+
+
+def _gather_args(plan: np.ndarray | None, out: np.ndarray | None) -> tuple:
+    if out is None:
+        return 0, 0, 0, 0
+    assert plan.dtype == np.int32 and plan.flags.c_contiguous and out.dtype == np.float64 \
+        and out.flags.c_contiguous and out.shape[1] == int(plan[:, 2].sum())
+    return plan.ctypes.data, len(plan), out.ctypes.data, out.shape[1]
 
 
 class Pool:
@@ -312,14 +352,15 @@ class Pool:
         self._keep: tuple = ()
 
     def submit(self, handles, worlds, theta, ctrl_idx, nstep, sync, status, step_seconds, bounds,
-               released: int | None = None) -> None:
+               released: int | None = None, plan: np.ndarray | None = None, out: np.ndarray | None = None) -> None:
         """``released``: how many of the first chunks may run now (default all); ``release`` lets the others
-        run once their rows of ``theta`` are written."""
-        self._keep = (handles, worlds, theta, ctrl_idx, status, step_seconds, bounds)
+        run once their rows of ``theta`` are written. ``plan``/``out``: the gather, as ``advance``."""
+        self._keep = (handles, worlds, theta, ctrl_idx, status, step_seconds, plan, out, bounds)
         k = len(bounds) - 1
         self._lib.vswrist_pool_submit(self._p, handles.ctypes.data, worlds.ctypes.data, theta.ctypes.data,
                                       ctrl_idx.ctypes.data, nstep, sync, status.ctypes.data, _ptr(step_seconds),
-                                      bounds.ctypes.data, k, k if released is None else int(released))
+                                      bounds.ctypes.data, k, k if released is None else int(released),
+                                      *_gather_args(plan, out))
 
     def release(self, upto: int | None = None) -> None:
         """Lets chunks below ``upto`` (default: all) be claimed."""
