@@ -276,10 +276,12 @@ def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> di
     return out
 
 
-def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> float | None:
+def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[float | None, float | None]:
     """The hardware's ceiling for the batch's thread speed-up, in the same run: the physics alone of ``n``
-    worlds (the compiled advance: substeps and sync, no Python) on ``threads`` threads against one thread,
-    wall time. None without the compiled advance."""
+    worlds (the compiled advance: substeps, sync and gather, no Python) on ``threads`` threads against one
+    thread, wall time; and the floor of env/phys: that one thread's CPU time over the CPU time inside its
+    ``mj_step`` substeps (what the advance's own work adds: above all the sync, a full ``mj_forward`` wherever
+    the task or the observation reads sensors). (None, None) without the compiled advance."""
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401
@@ -290,7 +292,7 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> float 
     lib = getattr(core, "_advance_fn", None)
     if lib is None:
         venv.close()
-        return None
+        return None, None
     venv.reset(seed=0)
     worlds = np.arange(n, dtype=np.int32)
     theta = np.ascontiguousarray([e.sim.motor_references() for e in core.envs])
@@ -298,25 +300,31 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> float 
     bounds = np.linspace(0, n, 4 * threads + 1).round().astype(np.int32)
     pool = advance_lib.Pool(lib, threads - 1)
     reps = max(steps // n, 10)
+    seconds = np.zeros(n)
+    gathered = np.empty((n, int(core._plan[:, 2].sum())))
+    cpu = [0.0]
 
     def run(t: int) -> float:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for _ in range(reps):
             if t == 1:
                 advance_lib.advance(lib, core._handles, worlds, theta, core._ctrl_idx, core._nstep, core._sync,
-                                    status)
+                                    status, seconds, core._plan, gathered)
             else:
                 pool.submit(core._handles, worlds, theta, core._ctrl_idx, core._nstep, core._sync, status, None,
                             bounds)
                 while pool.run_one() >= 0:
                     pass
                 pool.wait()
+        cpu[0] = time.process_time() - c0
         return time.perf_counter() - t0
 
-    one, many = run(1), run(threads)
+    one = run(1)
+    floor = cpu[0] / float(seconds.sum())
+    many = run(threads)
     pool.close()
     venv.close()
-    return one / many
+    return one / many, floor
 
 
 def bench_array_step(name: str, n: int, steps: int, repeats: int) -> dict:
@@ -488,12 +496,14 @@ def _batched(args, results: dict, cpu) -> None:
               f"env and a batch of one (CPU time, pinned)")
         print("ceiling: the physics alone (compiled advance, no Python) on the same threads / 1 thread, in the same "
               "run: what this machine's cores give at that moment")
-        print(f"{'task':<12}{'1 thr st/s':>11}{'env/phys':>9}{f'{args.threads} thr st/s':>11}{'speedup':>8}"
-              f"{'ceiling':>8}{'single us':>10}{'batch1 us':>10}")
+        print("floor: env/phys of that physics alone on 1 thread (substeps + the sync after them + gather, over the "
+              "substeps): what env/phys would be with no Python at all")
+        print(f"{'task':<12}{'1 thr st/s':>11}{'env/phys':>9}{'floor':>7}{f'{args.threads} thr st/s':>11}"
+              f"{'speedup':>8}{'ceiling':>8}{'single us':>10}{'batch1 us':>10}")
     for name in tasks:
         # repeats x (1 thread pinned; 1 thread and `threads` threads back to back, wall time): the medians, and
         # the median of the per-pair speed-ups, so that the machine's drift between runs cancels
-        ones, manys, walls, ceilings = [], [], [], []
+        ones, manys, walls, ceilings, floors = [], [], [], [], []
         for _ in range(args.repeats):
             if cpu is not None:
                 os.sched_setaffinity(0, {cpu})
@@ -504,12 +514,15 @@ def _batched(args, results: dict, cpu) -> None:
                 pass
             walls.append(bench_batch(name, n, args.steps, 1, pinned=False))  # the same clock as the threaded run
             manys.append(bench_batch(name, n, args.steps, args.threads, pinned=False))
-            ceilings.append(bench_physics_scaling(name, n, args.steps, args.threads))
+            ceiling, floor = bench_physics_scaling(name, n, args.steps, args.threads)
+            ceilings.append(ceiling)
+            floors.append(floor)
         one = sorted(ones, key=lambda r: r["overhead_ratio"])[len(ones) // 2]
         many = sorted(manys, key=lambda r: r["steps_per_s"])[len(manys) // 2]
         one_wall = sorted(walls, key=lambda r: r["steps_per_s"])[len(walls) // 2]
         speed = statistics.median(m["steps_per_s"] / w["steps_per_s"] for m, w in zip(manys, walls))
         ceiling = statistics.median(ceilings) if None not in ceilings else None
+        floor = statistics.median(floors) if None not in floors else None
         if cpu is not None:
             os.sched_setaffinity(0, {cpu})
         single = bench_single(name, max(args.steps // 2, 10), args.repeats)
@@ -518,9 +531,10 @@ def _batched(args, results: dict, cpu) -> None:
         except (AttributeError, OSError):
             pass
         results["batch"]["tasks"].append({"one_thread": one, "threads": many, "one_thread_wall": one_wall,
-                                          "speedup": speed, "physics_speedup": ceiling})
+                                          "speedup": speed, "physics_speedup": ceiling, "floor": floor})
         results["batch"]["single"].append(dict(single, task=name))
-        print(f"{name:<12}{one['steps_per_s']:>11.0f}{one['overhead_ratio']:>9.2f}{many['steps_per_s']:>11.0f}"
+        print(f"{name:<12}{one['steps_per_s']:>11.0f}{one['overhead_ratio']:>9.2f}"
+              f"{'-' if floor is None else f'{floor:.3f}':>7}{many['steps_per_s']:>11.0f}"
               f"{speed:>8.2f}{'-' if ceiling is None else f'{ceiling:.2f}':>8}{single['single']:>10.0f}"
               f"{single['batch1']:>10.0f}")
         rows.append((name, one, speed, single))
