@@ -64,6 +64,10 @@ class DrillEnv(VSWristEnv):
         self._axis_angle = float(rng.uniform(0.0, 2 * np.pi))
         self._thrust = float(rng.uniform(*self.tp["axial_force"]))
         self._engaged = False
+        # the episode's load in one row (``_before_physics_worlds`` stacks the worlds' rows in one call): engage
+        # and release times, torque amplitude, frequency and phase, thrust, the torque axis in the coupler frame
+        self._load = np.array([self._t_on, self._t_off, self._amp, self._freq, self._phase, self._thrust, 0.0,
+                               np.cos(self._axis_angle), np.sin(self._axis_angle)])
         return self._u, self._ps0, float(rng.uniform(-1.0, 1.0))
 
     ramp_s = 1.0  # s, the PS speed ramps up smoothly (constant acceleration) over this time
@@ -82,27 +86,26 @@ class DrillEnv(VSWristEnv):
     def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
         # the wrench is held over the period: sample it at the period's middle
         tc = t + 0.5 * worlds[0].ctrl_dt
-        on = (np.array([e._t_on for e in worlds]) <= tc) & (tc < np.array([e._t_off for e in worlds]))
+        load = np.array([e._load for e in worlds])
+        on = (load[:, 0] <= tc) & (tc < load[:, 1])
         wrench = np.zeros((len(worlds), 6))
         for e, engaged in zip(worlds, on.tolist()):
             e._engaged = engaged
         if on.any():
             idx = np.flatnonzero(on)
-            wrench[idx] = cls._drill_wrench([worlds[k] for k in idx.tolist()], tc[idx])
+            wrench[idx] = cls._drill_wrench([worlds[k] for k in idx.tolist()], tc[idx], load[idx])
         WristSim.apply_wrenches([e.sim for e in worlds], wrench)
 
     @staticmethod
-    def _drill_wrench(ws: list, tc: np.ndarray) -> np.ndarray:
-        """(thrust along -X_c, oscillating torque) (M, 6) on the engaged worlds ``ws`` at times ``tc``."""
+    def _drill_wrench(ws: list, tc: np.ndarray, load: np.ndarray) -> np.ndarray:
+        """(thrust along -X_c, oscillating torque) (M, 6) on the engaged worlds ``ws`` at times ``tc`` (their
+        rows of ``_load``)."""
         for e in ws:
             if e.sim._stale:  # poses are current after a step; not after a diverged one's reset
                 e.sim._forward()
         R = np.array([e.sim._coupler_xmat for e in ws]).reshape(-1, 3, 3)
-        ang = np.array([e._axis_angle for e in ws])
-        v = np.stack([np.zeros_like(ang), np.cos(ang), np.sin(ang)], axis=1)
-        axis = np.matmul(R, v[:, :, None])[:, :, 0]
-        amp, freq, phase, thrust = (np.array([getattr(e, k) for e in ws]) for k in ("_amp", "_freq", "_phase",
-                                                                                      "_thrust"))
+        axis = np.matmul(R, load[:, 6:9, None])[:, :, 0]
+        amp, freq, phase, thrust = load[:, 2], load[:, 3], load[:, 4], load[:, 5]
         torque = (amp * np.sin(2 * np.pi * freq * tc + phase))[:, None] * axis
         return np.concatenate([-thrust[:, None] * R[:, :, 0], torque], axis=1)
 
