@@ -192,7 +192,7 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         self._swing_t = self._swing_fe = None  # the swing's ramp: _reset_worlds, over the worlds resetting together
         self._strike = None          # (time s, normal speed m/s) of the first strike
         self._impact_reward = 0.0    # the strike's reward, paid on the step it happened
-        self._rigid = self.rigid_speed()
+        self._rigid = self._swing_n = self._head_c = None  # _reset_worlds: the swing's geometry at the strike
         return np.array([self._rud, tp["fe_start"]]), self._ps, -1.0
 
     @classmethod
@@ -200,6 +200,7 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         """The swing's FE ramp of each world (``ramp_reference``): for many worlds at once the same integration
         over arrays (``ramp_references`` with the controller's kinematics over arrays, which compute as the scalar
         path), one world's Python loop cost shared by all; a few worlds one by one."""
+        cls._strike_geometry(worlds)
         first = worlds[0]
         tp = first.tp
         args = (tp["fe_start"], tp["fe_end"])
@@ -231,27 +232,56 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         _, Ja = self.ctrl._q1_ja(self._rud, fe)
         return max(abs(Ja[0][1]), abs(Ja[1][1]), abs(Ja[2][1]))
 
-    def _head_point(self, fe: float) -> np.ndarray:
-        return self.tool_point(np.array([self._rud, fe]), self._ps, np.array([self._handle, 0.0, 0.0]))
+    def _head_point(self, fe) -> np.ndarray:
+        """Head centre (m, base frame) at (rud, fe), rigid; fe may be an array (the points stacked)."""
+        fe = np.asarray(fe, dtype=float)
+        u = np.stack([np.full_like(fe, self._rud), fe], axis=-1)
+        return self.tool_point(u, np.full_like(fe, self._ps), np.stack(
+            [np.full_like(fe, self._handle), np.zeros_like(fe), np.zeros_like(fe)], axis=-1))
 
     def swing_direction(self, fe: float) -> np.ndarray:
         """Unit direction (base frame) in which the head centre moves as FE grows, at (rud, fe), rigid."""
+        d, nd = self._swing_chord(np.array([fe]))
+        return d[0] / nd[0]
+
+    def _swing_chord(self, fe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The head's displacement (M, 3) between fe - h and fe + h (h = 1e-5 rad) and its length (M,)."""
         h = 1e-5
-        d = self._head_point(fe + h) - self._head_point(fe - h)
-        return d / np.linalg.norm(d)
+        p = self._head_point(np.concatenate([fe + h, fe - h]))
+        d = p[:len(fe)] - p[len(fe):]
+        return d, np.linalg.norm(d, axis=-1)
 
     def rigid_speed(self) -> float:
         """The rigid bound (m/s): the head's speed along the anvil normal at the strike posture when the link
         follows the motors rigidly along the swing, the fastest motor at its speed limit (x ``swing_speed``):
         speed limit x lever, the lever being the head's speed per radian of FE over the leg's."""
-        fe, h = self._fe_strike, 1e-5
-        lever = np.linalg.norm(self._head_point(fe + h) - self._head_point(fe - h)) / (2 * h)  # m per rad of FE
-        return self._fe_rate(fe) * lever
+        _, nd = self._swing_chord(np.array([self._fe_strike]))
+        return self._fe_rate(self._fe_strike) * (nd[0] / (2 * 1e-5))  # lever: m per rad of FE
+
+    @classmethod
+    def _strike_geometry(cls, worlds: list) -> None:
+        """Each world's rigid bound, swing direction and head centre at its strike posture (``rigid_speed``,
+        ``swing_direction``, ``_head_point``), the analytic kinematics of all the worlds' postures in one pass."""
+        first = worlds[0]
+        fe = np.array([e._fe_strike for e in worlds])
+        M = len(worlds)
+        h = 1e-5
+        rud = np.array([e._rud for e in worlds])
+        ps = np.array([e._ps for e in worlds])
+        handle = np.array([e._handle for e in worlds])
+        FE = np.concatenate([fe + h, fe - h, fe])
+        zero = np.zeros(3 * M)
+        p = first.tool_point(np.stack([np.tile(rud, 3), FE], axis=-1), np.tile(ps, 3),
+                             np.stack([np.tile(handle, 3), zero, zero], axis=-1))
+        d = p[:M] - p[M:2 * M]
+        nd = np.linalg.norm(d, axis=-1)
+        for e, dk, ndk, ck, fk in zip(worlds, d, nd.tolist(), p[2 * M:], fe.tolist()):
+            e._rigid = e._fe_rate(fk) * (ndk / (2 * h))
+            e._swing_n, e._head_c = dk / ndk, ck
 
     def _after_reset(self) -> None:
         # the anvil's face (its +Z) meets the head's end face at the strike posture, facing the swing
-        n = self.swing_direction(self._fe_strike)
-        c = self._head_point(self._fe_strike)
+        n, c = self._swing_n, self._head_c
         face = c + (HEAD_HALF_LENGTH + self.tp["head_radius"]) * n
         up = np.array([0.0, 0.0, 1.0])
         R = frame_from_z(-n, y_hint=up - (up @ n) * n)

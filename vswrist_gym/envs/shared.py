@@ -82,15 +82,16 @@ class SceneMixin:
         spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_TOUCH, objtype=mujoco.mjtObj.mjOBJ_SITE,
                         objname=f"{name}_site")
 
-    def tool_point(self, u, ps: float, p_tool) -> np.ndarray:
+    def tool_point(self, u, ps, p_tool) -> np.ndarray:
         """World position (m) of point ``p_tool`` (tool frame) at posture u (2,), PS angle ps, from the analytic
-        kinematics: O_c + R_c Rx(ps) (hand_offset e_x + p_tool). Used to place task objects."""
-        from ..kinematics import WristKinematics, rot_x
+        kinematics: O_c + R_c Rx(ps) (hand_offset e_x + p_tool). Used to place task objects. Stacks (u (..., 2),
+        ps (...), p_tool (..., 3)) give the points of many postures in one pass, each as alone."""
+        from ..kinematics import WristKinematics, _mv, rot_x
         if not hasattr(self, "_kin"):
             self._kin = WristKinematics(self.nominal_params)
         T = self._kin.coupler_pose(np.asarray(u, dtype=float), allow_outside=True)
-        p = np.array([self.nominal_params.inertia.hand_offset, 0.0, 0.0]) + rot_x(ps) @ np.asarray(p_tool, float)
-        return T[:3, 3] + T[:3, :3] @ p
+        p = np.array([self.nominal_params.inertia.hand_offset, 0.0, 0.0]) + _mv(rot_x(ps), np.asarray(p_tool, float))
+        return T[..., :3, 3] + _mv(T[..., :3, :3], p)
 
     def _add_tool_geom(self, spec: mujoco.MjSpec, name: str, fromto, radius: float, mass: float,
                        friction: float = 0.5) -> None:
