@@ -477,7 +477,7 @@ def test_a_task_error_after_the_first_chunks_stepped_needs_a_reset():
 
         __ge__ = __le__
 
-    world._t_on = Broken()
+    world._load = np.array([Broken()] + [0.0] * 8, dtype=object)  # the engage time
     acts = np.zeros(venv.action_space.shape)
     with pytest.raises(RuntimeError, match="a bug in a task hook"):
         venv.step(acts)

@@ -644,13 +644,28 @@ class VSWristVectorEnv(VectorEnv):
         L = len(worlds)
         dt = first.ctrl_dt
         light = first._light_sync
-        contact = [0.0] * L
+        noise = first._noise_std is not None
         failed = [e._failure for e in worlds]
         hook_contact = self._hook_contact
+        # world by world, first (the single env's step up to ``_measure``'s contact hook): the step count and
+        # time, the task's contact force; and what the arrays below need of each world's state
+        contact, K, d0, T, lam, prev, nz_rows, steps = [], [], [], [], [], [], [], []
         for e in worlds:
             e._theta_prev = e._theta
-            e._step += 1
-            e._t = e._step * dt
+            k = e._step + 1
+            e._step = k
+            e._t = k * dt
+            steps.append(k)
+            sp = e.params.spring
+            K.append(sp.K)
+            d0.append(sp.delta0)
+            T.append(e._references[k])
+            lam.append(e.ctrl.lam)
+            prev.append(e._prev_action)
+            if noise:
+                nz = e._nz = e._noise[k]  # ``_draw_noise`` (the task's own observation terms may read it)
+                nz_rows.append(nz)
+            contact.append(e._contact_force() if hook_contact else 0.0)
         sims = [e.sim for e in worlds]
         redo = []
         for k in range(L):
@@ -663,16 +678,12 @@ class VSWristVectorEnv(VectorEnv):
             G = self._gather(sims)
         elif redo:
             G[redo] = self._gather([sims[k] for k in redo])
-        if hook_contact:
-            contact = [e._contact_force() for e in worlds]
         P, D, Q = self._read_posture(G)
         bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
-        failures: dict[int, str] = {}
-        for k, e in enumerate(worlds):
-            if failed[k] is None and bad[k]:
-                failed[k] = f"non-finite state at t = {e._t:.3f} s"
-            if failed[k] is not None:
-                failures[k] = failed[k]
+        failures: dict[int, str] = {k: failed[k] for k in range(L) if failed[k] is not None}
+        for k in np.flatnonzero(bad).tolist():
+            if k not in failures:
+                failures[k] = f"non-finite state at t = {worlds[k]._t:.3f} s"
         closure = self._read_closure(G, sims, light)
         for k in failures:
             # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
@@ -684,56 +695,61 @@ class VSWristVectorEnv(VectorEnv):
             P[k], D[k], contact[k] = e._posture, e._defl, e._contact
             G[k] = self._gather([e.sim])[0]  # what the observation reads: the clean state
             Q[k] = G[k, self._cols["qpos"]]
-        K = np.array([e.params.spring.K for e in worlds])[:, None]
-        d0 = np.array([e.params.spring.delta0 for e in worlds])[:, None]
-        law = SpringLaw(K, d0)  # each world's own springs
+        law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
         e3 = spring_energy(D, law)
         energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
-        T = np.array([e._references[e._step] for e in worlds])
+        T = np.array(T)
         err = wrap_angle(P - T)
+        contact_a = np.array(contact)
+        closure_a = np.array(closure)
+        steps = np.array(steps)
+        lam = np.array(lam)
+        prev = np.array(prev)
+        terminated = np.zeros(L, dtype=bool)
+        terminated[list(failures)] = True
+        PA = A.astype(np.float32)
+        time_up = ~terminated & (steps >= first.episode_steps)
+        exceeded = closure_a > first._closure_warn
+        cut = ~terminated & exceeded if first._closure_truncate else np.zeros(L, dtype=bool)
+        truncated = time_up | cut
+        ends = (terminated | truncated).tolist()
 
-        # world by world: the state the single env keeps, the task's reward terms, noise, simulator-read terms
-        noise = first._noise_std is not None
+        # world by world: the state the single env keeps, the task's reward terms, the task's and the simulator's
+        # observation terms that are not computed over arrays
         raw = np.empty((L, self._obs_size))
-        world_terms = self._world_terms
+        world_terms = [(a, b, name) for a, b, name in self._world_terms if name != "tool_wrench"]
         hook_reward = self._hook_reward
         task_raw = []
-        nz_rows = []
+        peak, sumsq = [], []
         term_vals: list[list] = [[] for _ in world_terms]
         Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
-        for e, p, d, pl, dl, en, c, cl, tg, er in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err):
+        for e, p, d, pl, dl, en, c, cl, tg, er, pa, end in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err,
+                                                                PA, ends):
             e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
             e._energy, e._contact, e._closure, e._target = en, c, cl, tg
             pk = e._peak_contact
-            e._peak_contact = c if c > pk else pk  # = max(pk, c)
-            e._sum_contact_sq += c * c
+            pk = c if c > pk else pk  # = max(pk, c)
+            e._peak_contact = pk
+            peak.append(pk)
+            sq = e._sum_contact_sq + c * c
+            e._sum_contact_sq = sq
+            sumsq.append(sq)
             h = e._history
             h["error"].append(er)
             h["energy"].append(en)
             h["contact"].append(c)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))
-            if noise:
-                e._draw_noise()
-                nz_rows.append(e._nz)
+            e._prev_action = pa
+            e._needs_reset = end
             for vals, (a, b, name) in zip(term_vals, world_terms):
-                if name != "tool_wrench":
-                    vals.append(e._terms[name].fn())
+                vals.append(e._terms[name].fn())
         NZ = np.array(nz_rows) if noise else None
         for vals, (a, b, name) in zip(term_vals, world_terms):
-            if name == "tool_wrench":
-                raw[:, a:b] = self._read_tool_wrench(G)
-            elif b - a == 1:
+            if b - a == 1:
                 raw[:, a] = np.array(vals, dtype=float).reshape(L)
             else:
                 raw[:, a:b] = np.array(vals, dtype=float)
-        contact_a = np.array(contact)
-        closure_a = np.array(closure)
-        steps = np.array([e._step for e in worlds])
-        lam = np.array([e.ctrl.lam for e in worlds])
-        prev = np.array([e._prev_action for e in worlds])
-        terminated = np.zeros(L, dtype=bool)
-        terminated[list(failures)] = True
 
         # reward (RewardsMixin._reward over arrays, the same terms in the same order)
         sc = first.cfg["scales"]
@@ -752,16 +768,6 @@ class VSWristVectorEnv(VectorEnv):
             v = w * rterms[name]
             cols[f"reward_{name}"] = v
             reward += v
-        PA = A.astype(np.float32)
-        time_up = ~terminated & (steps >= first.episode_steps)
-        exceeded = closure_a > first._closure_warn
-        cut = ~terminated & exceeded if first._closure_truncate else np.zeros(L, dtype=bool)
-        truncated = time_up | cut
-        final = (time_up & ~cut).tolist()
-        ends = (terminated | truncated).tolist()
-        for e, pa, end in zip(worlds, PA, ends):
-            e._prev_action = pa
-            e._needs_reset = end
 
         # observation (ObservationsMixin._observation over arrays)
         for a, b, name in self._array_terms:
@@ -794,26 +800,30 @@ class VSWristVectorEnv(VectorEnv):
                 raw[:, a] = np.where(cf > 0.0, cf, 0.0)  # a touch sensor never reads a pull
             elif name == "phase":
                 raw[:, a] = steps / first.episode_steps
-        if NZ is not None:
-            for a, b, name in world_terms:
-                if name == "tool_wrench":
+        for a, b, name in self._world_terms:
+            if name == "tool_wrench":
+                raw[:, a:b] = self._read_tool_wrench(G)
+                if NZ is not None:
                     raw[:, a:b] += NZ[:, 6:12]
         np.maximum(raw, first._obs_low, out=raw)
         np.minimum(raw, first._obs_high, out=raw)
 
         # info (RewardsMixin._info over arrays)
         t = steps * dt
+        success = np.zeros(L, dtype=bool)
+        for k in np.flatnonzero(time_up & ~cut).tolist():
+            success[k] = bool(worlds[k]._success())
         cols.update(
             posture_error=np.sqrt(_row_sum_sq(err)),
             contact_force=contact_a,
-            peak_contact_force=np.array([e._peak_contact for e in worlds]),
-            rms_contact_force=np.sqrt(np.array([e._sum_contact_sq for e in worlds]) / np.maximum(steps, 1)),
+            peak_contact_force=np.array(peak),
+            rms_contact_force=np.sqrt(np.array(sumsq) / np.maximum(steps, 1)),
             elastic_energy=energy,
             lam=lam,
             loop_closure=closure_a,
             closure_exceeded=exceeded,
             time=t,
-            is_success=np.array([bool(e._success()) if f else False for e, f in zip(worlds, final)], dtype=bool),
+            is_success=success,
         )
         if self._hook_info:
             extra = [e._task_info() for e in worlds]
