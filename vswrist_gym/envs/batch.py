@@ -20,8 +20,9 @@ works per world). One ``step`` of the batch:
    The compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and Polish's and
    Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable state (theirs lives in each
    MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds advance in
-   parallel; no task steps substep by substep from Python. The worlds that reset at this step settle (the
-   reset's physics) on a thread pool meanwhile. Without a C++ compiler, or for worlds with actuation latency,
+   parallel; no task steps substep by substep from Python. The worlds that reset at this step begin their
+   episodes together (``VSWristEnv._reset_begin_worlds``: the kinematics of all their initial postures in one
+   pass) and settle (the reset's physics) on a thread pool meanwhile. Without a C++ compiler, or for worlds with actuation latency,
    each world runs ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads``
    threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
    only contend for the GIL: the batch then steps serially;
