@@ -88,12 +88,16 @@ class DrillEnv(VSWristEnv):
         tc = t + 0.5 * worlds[0].ctrl_dt
         load = np.array([e._load for e in worlds])
         on = (load[:, 0] <= tc) & (tc < load[:, 1])
-        wrench = np.zeros((len(worlds), 6))
-        for e, engaged in zip(worlds, on.tolist()):
+        flags = on.tolist()
+        for e, engaged in zip(worlds, flags):
             e._engaged = engaged
-        if on.any():
-            idx = np.flatnonzero(on)
-            wrench[idx] = cls._drill_wrench([worlds[k] for k in idx.tolist()], tc[idx], load[idx])
+        if all(flags):  # every world engaged (the single env, while it drills): no selection
+            wrench = cls._drill_wrench(worlds, tc, load)
+        else:
+            wrench = np.zeros((len(worlds), 6))
+            if any(flags):
+                idx = np.flatnonzero(on)
+                wrench[idx] = cls._drill_wrench([worlds[k] for k in idx.tolist()], tc[idx], load[idx])
         WristSim.apply_wrenches([e.sim for e in worlds], wrench)
 
     @staticmethod
