@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from .params import WristParams, load_params
-from .stiffness import max_leg_torque, spring_deflection, spring_stiffness_at_torque
+from .stiffness import SpringLaw, max_leg_torque, spring_deflection, spring_stiffness_at_torque
 
 _HESSIAN_STEP = 1e-5  # rad; central differences of the closed-form J_a (error ~1e-10 relative)
 
@@ -116,6 +116,7 @@ class AnalyticController:
         self._legs_ce = np.array([[c] for c, _ in self._legs])
         self._legs_se = np.array([[s] for _, s in self._legs])
         self._K, self._delta0 = p.spring.K, p.spring.delta0
+        self._law = SpringLaw(p.spring.K, p.spring.delta0)  # the spring law's constants, looked up once
         self._tau_max = max_leg_torque(p)
         rom = p.range_of_motion
         self._limits = ((rom.rud_min, rom.rud_max), (rom.fe_min, rom.fe_max), (rom.ps_min, rom.ps_max))
@@ -174,7 +175,8 @@ class AnalyticController:
             t0, t1, t2 = min(max(t0 + g0, -tmax), tmax), min(max(t1 + g1, -tmax), tmax), min(max(t2 + g2, -tmax), tmax)
         # the springs exert exactly tau at theta = q1 - delta(tau)
         theta = np.empty(4)
-        theta[:3] = q1[:3] - spring_deflection(np.array([t0, t1, t2]), self.params)
+        theta[:3] = q1
+        theta[:3] -= spring_deflection(np.array([t0, t1, t2]), self._law)
         theta[3] = ps
         return theta
 
@@ -208,7 +210,7 @@ class AnalyticController:
             t1 = np.minimum(np.maximum(t1 + g1, -tmax), tmax)
             t2 = np.minimum(np.maximum(t2 + g2, -tmax), tmax)
         theta = np.empty((ref.shape[0], 4))
-        theta[:, :3] = q1 - spring_deflection(np.stack([t0, t1, t2], axis=1), self.params)
+        theta[:, :3] = q1 - spring_deflection(np.stack([t0, t1, t2], axis=1), self._law)
         theta[:, 3] = ps
         return theta, lam_c, np.stack([ay, az, ps], axis=1)
 
