@@ -77,9 +77,8 @@ class LoadHoldEnv(VSWristEnv):
     @classmethod
     def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
         # the load acts from the first control period that starts at or after its onset
-        on = np.flatnonzero(t + 1e-12 >= np.array([e._onset for e in worlds])).tolist()
-        if on:
-            ws = [worlds[k] for k in on]
+        ws = [e for e, tk in zip(worlds, t.tolist()) if tk + 1e-12 >= e._onset]
+        if ws:
             wrench = np.zeros((len(ws), 6))
             wrench[:, :3] = [e._load_force for e in ws]
             WristSim.apply_wrenches([e.sim for e in ws], wrench)
