@@ -403,3 +403,31 @@ def test_bench_sim_command_prints_the_overhead_ratio():
                              r"([0-9.]+)", out, flags=re.M))
     assert set(ratios) == {"full, C plugin (default)", "Python loop, mj_step per substep"}, out
     assert 0.8 < float(ratios["full, C plugin (default)"]) < float(ratios["Python loop, mj_step per substep"])
+
+
+def test_reset_many_is_each_reset_alone_and_checks_before_it_changes_anything():
+    """``WristSim.reset_many`` (a batch's worlds that reset together) puts each simulator where its own ``reset``
+    would, to the bit; a bad internal torque in one of them raises naming it and leaves every simulator as it
+    was. Independent check: the springs then carry lam N (the spring law at the simulated deflections)."""
+    p = WristSim().params  # the simulator's default parameters
+    us = [(0.1, -0.2), (-0.3, 0.25), (0.0, 0.0)]
+    pss = [0.2, -0.4, 0.0]
+    lams = [0.4 * lambda_range(np.array(u), p)[1] for u in us]
+    many = [WristSim() for _ in us]
+    WristSim.reset_many(many, us, pss, lams)
+    for s, u, ps, lam in zip(many, us, pss, lams):
+        alone = WristSim()
+        alone.reset(u=u, ps=ps, lam=lam)
+        for field in ("qpos", "ctrl", "act", "qvel"):
+            np.testing.assert_array_equal(getattr(s.data, field), getattr(alone.data, field), err_msg=field)
+    from vswrist_gym.kinematics import WristKinematics
+    for s, u, lam in zip(many, us, lams):
+        N = WristKinematics(p).internal_torque_basis(np.array(u))
+        np.testing.assert_allclose(spring_torque(s.deflections(), p), lam * N, atol=1e-9)
+    for s in many:  # away from the reset state, so that a reset half done would show
+        s.step(0.01)
+    before = [s.data.qpos.copy() for s in many]
+    with pytest.raises(ValueError, match="lam = 1e\\+06 N m is outside"):
+        WristSim.reset_many(many, us, pss, [lams[0], 1e6, lams[2]])
+    for s, q in zip(many, before):
+        np.testing.assert_array_equal(s.data.qpos, q)

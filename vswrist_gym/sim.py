@@ -160,13 +160,15 @@ class WristSim:
         # q1 and N once, for both the range check and the motor references (each would compute N again)
         Q = kin.joint_angles(U)
         N = kin.internal_torque_basis(U)
-        for s, uk, q, nk, p, lk in zip(sims, U, Q, N, PS, lam):
+        LAM, TERMS = [float(lk) for lk in lam], []
+        for s, uk, q, nk, lk in zip(sims, U, Q, N, LAM):  # every check before any simulator changes
             terms = PostureTerms(u=uk, q1=q[0::4], Ja=None, N=nk, Ha=None)
             lo, hi = lambda_range(uk, s.params, terms=terms)
-            lk = float(lk)
             if not (lo - 1e-9 <= lk <= hi + 1e-9):
                 raise ValueError(f"lam = {lk:.6g} N m is outside the range the motor torque and deflection limits "
                                  f"allow at u = {uk}: [{lo:.6g}, {hi:.6g}] N m")
+            TERMS.append(terms)
+        for s, uk, q, terms, p, lk in zip(sims, U, Q, TERMS, PS, LAM):
             m, d = s.model, s.data
             mujoco.mj_resetDataKeyframe(m, d, 0)
             theta = np.append(motor_references(uk, lk, s.params, terms=terms), p)
