@@ -100,6 +100,11 @@ def _row_sum_sq(x: np.ndarray) -> np.ndarray:
     return out
 
 
+# the MjData array behind each field of a gather plan (``advance_lib.F_*``), for ``VSWristVectorEnv._gather``
+GATHER_FIELDS = {advance_lib.F_QPOS: "qpos", advance_lib.F_QVEL: "qvel", advance_lib.F_XPOS: "xpos",
+                 advance_lib.F_XQUAT: "xquat", advance_lib.F_XMAT: "xmat", advance_lib.F_CVEL: "cvel",
+                 advance_lib.F_SENSOR: "sensordata", advance_lib.F_SITE_XMAT: "site_xmat"}
+
 THREADS_ENV = "VSWRIST_THREADS"  # physics threads of every batch made without ``threads`` (e.g. by vswrist train)
 
 
@@ -867,13 +872,10 @@ class VSWristVectorEnv(VectorEnv):
     def _gather(self, sims: list) -> np.ndarray:
         """The gather of ``sims`` in Python (worlds the compiled advance did not step or read), from their
         synced MjData."""
-        H = advance_lib
-        names = {H.F_QPOS: "qpos", H.F_QVEL: "qvel", H.F_XPOS: "xpos", H.F_XQUAT: "xquat", H.F_XMAT: "xmat",
-                 H.F_CVEL: "cvel", H.F_SENSOR: "sensordata", H.F_SITE_XMAT: "site_xmat"}
         G = np.empty((len(sims), int(self._plan[:, 2].sum())))
         for k, s in enumerate(sims):
-            parts = [s._closure_peak if f == H.F_PEAK else getattr(s.data, names[f]).reshape(-1)[a:a + n]
-                     for f, a, n in self._plan.tolist()]
+            parts = [s._closure_peak if f == advance_lib.F_PEAK
+                     else getattr(s.data, GATHER_FIELDS[f]).reshape(-1)[a:a + n] for f, a, n in self._plan.tolist()]
             G[k] = np.concatenate(parts)
         return G
 

@@ -232,52 +232,39 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         _, Ja = self.ctrl._q1_ja(self._rud, fe)
         return max(abs(Ja[0][1]), abs(Ja[1][1]), abs(Ja[2][1]))
 
-    def _head_point(self, fe) -> np.ndarray:
-        """Head centre (m, base frame) at (rud, fe), rigid; fe may be an array (the points stacked)."""
-        fe = np.asarray(fe, dtype=float)
-        u = np.stack([np.full_like(fe, self._rud), fe], axis=-1)
-        return self.tool_point(u, np.full_like(fe, self._ps), np.stack(
-            [np.full_like(fe, self._handle), np.zeros_like(fe), np.zeros_like(fe)], axis=-1))
-
     def swing_direction(self, fe: float) -> np.ndarray:
         """Unit direction (base frame) in which the head centre moves as FE grows, at (rud, fe), rigid."""
-        d, nd = self._swing_chord(np.array([fe]))
-        return d[0] / nd[0]
-
-    def _swing_chord(self, fe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The head's displacement (M, 3) between fe - h and fe + h (h = 1e-5 rad) and its length (M,)."""
-        h = 1e-5
-        p = self._head_point(np.concatenate([fe + h, fe - h]))
-        d = p[:len(fe)] - p[len(fe):]
-        return d, np.linalg.norm(d, axis=-1)
+        return self._swing_geometry([self], np.array([fe]))[1][0]
 
     def rigid_speed(self) -> float:
         """The rigid bound (m/s): the head's speed along the anvil normal at the strike posture when the link
         follows the motors rigidly along the swing, the fastest motor at its speed limit (x ``swing_speed``):
         speed limit x lever, the lever being the head's speed per radian of FE over the leg's."""
-        _, nd = self._swing_chord(np.array([self._fe_strike]))
-        return self._fe_rate(self._fe_strike) * (nd[0] / (2 * 1e-5))  # lever: m per rad of FE
+        return self._swing_geometry([self], np.array([self._fe_strike]))[0][0]
 
-    @classmethod
-    def _strike_geometry(cls, worlds: list) -> None:
-        """Each world's rigid bound, swing direction and head centre at its strike posture (``rigid_speed``,
-        ``swing_direction``, ``_head_point``), the analytic kinematics of all the worlds' postures in one pass."""
-        first = worlds[0]
-        fe = np.array([e._fe_strike for e in worlds])
-        M = len(worlds)
-        h = 1e-5
+    @staticmethod
+    def _swing_geometry(worlds: list, fe: np.ndarray) -> tuple[list, np.ndarray, np.ndarray]:
+        """At FE angle fe[k] of each world k (its rud, PS and handle), rigid: the rigid bound (m/s, as
+        ``rigid_speed``), the unit swing direction and the head centre (m, base frame), from the head's chord
+        between fe - h and fe + h (h = 1e-5 rad); the analytic kinematics of all the postures in one pass."""
+        M, h = len(worlds), 1e-5
         rud = np.array([e._rud for e in worlds])
         ps = np.array([e._ps for e in worlds])
         handle = np.array([e._handle for e in worlds])
-        FE = np.concatenate([fe + h, fe - h, fe])
         zero = np.zeros(3 * M)
-        p = first.tool_point(np.stack([np.tile(rud, 3), FE], axis=-1), np.tile(ps, 3),
-                             np.stack([np.tile(handle, 3), zero, zero], axis=-1))
+        p = worlds[0].tool_point(np.stack([np.tile(rud, 3), np.concatenate([fe + h, fe - h, fe])], axis=-1),
+                                 np.tile(ps, 3), np.stack([np.tile(handle, 3), zero, zero], axis=-1))
         d = p[:M] - p[M:2 * M]
         nd = np.linalg.norm(d, axis=-1)
-        for e, dk, ndk, ck, fk in zip(worlds, d, nd.tolist(), p[2 * M:], fe.tolist()):
-            e._rigid = e._fe_rate(fk) * (ndk / (2 * h))
-            e._swing_n, e._head_c = dk / ndk, ck
+        rigid = [e._fe_rate(fk) * (ndk / (2 * h)) for e, fk, ndk in zip(worlds, fe.tolist(), nd.tolist())]
+        return rigid, d / nd[:, None], p[2 * M:]
+
+    @classmethod
+    def _strike_geometry(cls, worlds: list) -> None:
+        """Each world's rigid bound, swing direction and head centre at its strike posture, for ``_after_reset``."""
+        rigid, n, c = cls._swing_geometry(worlds, np.array([e._fe_strike for e in worlds]))
+        for e, rk, nk, ck in zip(worlds, rigid, n, c):
+            e._rigid, e._swing_n, e._head_c = rk, nk, ck
 
     def _after_reset(self) -> None:
         # the anvil's face (its +Z) meets the head's end face at the strike posture, facing the swing

@@ -302,9 +302,9 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[
     reps = max(steps // n, 10)
     seconds = np.zeros(n)
     gathered = np.empty((n, int(core._plan[:, 2].sum())))
-    cpu = [0.0]
 
-    def run(t: int) -> float:
+    def run(t: int) -> tuple[float, float]:
+        """Wall and CPU seconds of ``reps`` periods on ``t`` threads."""
         t0, c0 = time.perf_counter(), time.process_time()
         for _ in range(reps):
             if t == 1:
@@ -316,12 +316,11 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[
                 while pool.run_one() >= 0:
                     pass
                 pool.wait()
-        cpu[0] = time.process_time() - c0
-        return time.perf_counter() - t0
+        return time.perf_counter() - t0, time.process_time() - c0
 
-    one = run(1)
-    floor = cpu[0] / float(seconds.sum())
-    many = run(threads)
+    one, one_cpu = run(1)
+    floor = one_cpu / float(seconds.sum())
+    many, _ = run(threads)
     pool.close()
     venv.close()
     return one / many, floor
