@@ -22,8 +22,8 @@ works per world). One ``step`` of the batch:
    MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds advance in
    parallel; no task steps substep by substep from Python. The worlds that reset at this step begin their
    episodes together (``VSWristEnv._reset_begin_worlds``: the kinematics of all their initial postures in one
-   pass) and settle (the reset's physics) on a thread pool meanwhile. Without a C++ compiler, or for worlds with actuation latency,
-   each world runs ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads``
+   pass) and settle (the reset's physics) on a thread pool meanwhile. Without a C++ compiler, or for worlds
+   with actuation latency, each world runs ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads``
    threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
    only contend for the GIL: the batch then steps serially;
 5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool

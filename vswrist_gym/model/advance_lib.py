@@ -342,9 +342,9 @@ def _gather_args(plan: np.ndarray | None, out: np.ndarray | None) -> tuple:
 class Pool:
     """``threads`` C++ threads that step a batch's chunks of worlds (see the source). ``submit`` returns at
     once; ``run_one(keep)`` steps the next unclaimed released chunk on the calling thread (its index), unless
-    at most ``keep`` are left unclaimed (-1); ``ready()`` gives the chunks' done flags; ``wait(c)`` blocks until chunk c is done, ``wait()``
-    until all released ones are. The arrays given to ``submit`` are kept referenced until the next submit, so they outlive the
-    threads' use of them."""
+    at most ``keep`` are left unclaimed (-1); ``ready()`` gives the chunks' done flags; ``wait(c)`` blocks until
+    chunk c is done, ``wait()`` until all released ones are. The arrays given to ``submit`` are kept referenced
+    until the next submit, so they outlive the threads' use of them."""
 
     def __init__(self, lib, threads: int):
         self._lib, self.threads, self.pid = lib, threads, os.getpid()
