@@ -217,6 +217,7 @@ class VSWristVectorEnv(VectorEnv):
         self._handle_sims: list = [None] * self.num_envs
         self._blocked = np.zeros(self.num_envs, dtype=bool)  # worlds the compiled advance cannot step
         self._plan, self._cols = self._gather_plan(first)
+        self._gather_width = int(self._plan[:, 2].sum())  # columns of a gather row
         # CPU seconds inside the worlds' mj_step substeps (the compiled path), summed while not None (benchmarks)
         self.physics_seconds: float | None = None
         self.set_threads(threads)
@@ -365,7 +366,7 @@ class VSWristVectorEnv(VectorEnv):
         widx = np.asarray(idx, dtype=np.int32)
         status = np.zeros(L, dtype=np.int32)
         seconds = None if self.physics_seconds is None else np.zeros(L)
-        G = None if per_world else np.empty((L, self._plan[:, 2].sum()))  # the gather (``_gather_plan``)
+        G = None if per_world else np.empty((L, self._gather_width))  # the gather (``_gather_plan``)
         plan = None if per_world else self._plan
         lib = self._advance_fn
         parts: list = []  # (positions in idx, _finish's results for those worlds)
@@ -872,7 +873,7 @@ class VSWristVectorEnv(VectorEnv):
     def _gather(self, sims: list) -> np.ndarray:
         """The gather of ``sims`` in Python (worlds the compiled advance did not step or read), from their
         synced MjData."""
-        G = np.empty((len(sims), int(self._plan[:, 2].sum())))
+        G = np.empty((len(sims), self._gather_width))
         for k, s in enumerate(sims):
             parts = [s._closure_peak if f == advance_lib.F_PEAK
                      else getattr(s.data, GATHER_FIELDS[f]).reshape(-1)[a:a + n] for f, a, n in self._plan.tolist()]

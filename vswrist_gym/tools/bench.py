@@ -301,7 +301,7 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[
     pool = advance_lib.Pool(lib, threads - 1)
     reps = max(steps // n, 10)
     seconds = np.zeros(n)
-    gathered = np.empty((n, int(core._plan[:, 2].sum())))
+    gathered = np.empty((n, core._gather_width))
 
     def run(t: int) -> tuple[float, float]:
         """Wall and CPU seconds of ``reps`` periods on ``t`` threads."""
