@@ -38,6 +38,15 @@ TASK_METRICS = ("impact_speed",)  # read from the last step's info where the tas
 
 EVAL_SEED_MAX = (2**32 - 1 - EVAL_SEED_BASE) // 1000 - 1  # keeps every reset seed a valid 32-bit NumPy seed
 
+# The benchmark's seed ranges, fixed before any benchmark result. Training seeds seed the learner; evaluation
+# seeds pick episodes (reset seeds `reset_seed(s, i)`). Hyperparameter search trains on TUNING_TRAIN_SEEDS and
+# scores on TUNING_EVAL_SEEDS; task design, rule thresholds and schedule optimisation read only tuning
+# episodes. HELDOUT_EVAL_SEEDS serve the final report alone: no tuning, selection or design step reads them.
+BENCHMARK_TRAIN_SEEDS = tuple(range(0, 10))
+TUNING_TRAIN_SEEDS = tuple(range(1000, 1010))
+TUNING_EVAL_SEEDS = tuple(range(2048, 2058))
+HELDOUT_EVAL_SEEDS = tuple(range(4096, 4106))
+
 
 def reset_seed(seed: int, episode: int) -> int:
     if not 0 <= episode < EPISODES_PER_SEED_MAX:
