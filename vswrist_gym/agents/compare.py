@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vswrist_gym.agents.baseline import DEFAULT_STIFFNESS_LEVELS
 from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, load_config, track_of
 from vswrist_gym.agents.protocol import (METRICS, check_eval_seeds, evaluate, json_safe, summarise,
                                          write_metrics, write_partial)
@@ -32,7 +33,6 @@ COMPARE_OUTPUT_NAMES = ("table.md", "summary.json", "learning_curves.png", "trac
 
 # the algorithms `vswrist compare` trains unless --algos says otherwise (the README's main job: PPO and SAC)
 DEFAULT_ALGOS = ("ppo", "sac")
-DEFAULT_STIFFNESS_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 TABLE_METRICS = ("return", "success", "rms_posture_error", "peak_contact_force", "rms_contact_force",
                  "elastic_energy", "stiffness_used")
 

@@ -25,13 +25,19 @@ from vswrist_gym.agents.runs import RunDirError, TrainedAgent, check_new_out, ch
 EVAL_OUTPUT_NAMES = ("metrics.json", "metrics.csv", PARTIAL_FILE)
 
 
+CHECKPOINT_CHOICES = ("newest", "final", "latest", "best")
+CHECKPOINT_HELP = ("which model of a run directory: newest (default: the newest model run.json accounts for, "
+                   "model.zip or a later checkpoint), final (model.zip, even when the run went on), latest "
+                   "checkpoint, best periodic evaluation")
+
+
 class AgentSpec:
     """An agent named on the command line: 'analytic', 'analytic:STIFFNESS' (in [-1, 1]), a run directory, an RL
     Zoo experiment folder, a model file inside either (see runs.TrainedAgent), or a policy shipped in the package,
     'pretrained:<Task>[:<track>]' (vswrist_gym.pretrained). `vswrist evaluate`, `video` and `view` all parse
     --agent here."""
 
-    def __init__(self, text: str, checkpoint: str = "final"):
+    def __init__(self, text: str, checkpoint: str = "newest"):
         self.text = text
         self.trained: TrainedAgent | None = None
         self.stiffness: float | None = None
@@ -41,7 +47,7 @@ class AgentSpec:
 
             self.kind = "trained"
             self.pretrained = pretrained.resolve(text)
-            if checkpoint != "final":
+            if checkpoint not in ("final", "newest"):
                 raise ConfigError(f"--checkpoint {checkpoint}: a shipped policy ({text}) has its final model only")
             self.trained = TrainedAgent(self.pretrained, checkpoint="final")
         elif text == "analytic" or text.startswith("analytic:"):
@@ -90,9 +96,11 @@ class AgentSpec:
         return AnalyticAgent(env, **kwargs)
 
 
-def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path, checkpoint: str = "final",
-        video: str | None = None, argv: list[str] | None = None, trace_episode=None) -> dict:
-    """Evaluate and write DIR/metrics.json and DIR/metrics.csv; returns the metrics document."""
+def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path, checkpoint: str = "newest",
+        video: str | None = None, argv: list[str] | None = None, trace_episode=None, baseline: bool = True) -> dict:
+    """Evaluate and write DIR/metrics.json and DIR/metrics.csv; returns the metrics document. A trained agent is
+    scored beside the best constant stiffness on the same episodes (`baseline`; see agents.baseline), stored in
+    metrics.json under 'baseline'."""
     from vswrist_gym.agents.runs import limit_threads
     from vswrist_gym.agents.train import task_id
 
@@ -113,6 +121,9 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
         header["command"] = "vswrist evaluate " + shlex.join(argv)
     if spec.trained is not None:
         header["training_seed"] = spec.trained.seed
+        header["model_file"] = str(spec.trained.model_path)
+        if spec.trained.note:
+            header["model_note"] = spec.trained.note
     if video is not None:
         header["video"] = str(video)
     out.mkdir(parents=True, exist_ok=True)
@@ -120,6 +131,12 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
                               trace_episode=trace_episode, video_path=video,
                               on_record=lambda recs: write_partial(out, header, recs))
     summary = summarise(records)
+    if baseline and spec.kind == "trained":
+        from vswrist_gym.agents.baseline import baseline_summary, best_constant
+
+        best = best_constant(env_id, seeds, episodes, env_kwargs=spec.env_kwargs)
+        if best is not None:
+            header["baseline"] = baseline_summary(records, best)
     write_metrics(out, header, records, summary)
     return {**header, "summary": summary, "trace": trace}
 
@@ -144,9 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=5, help="episodes per seed (default 5)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="evaluation seeds (default 0-4)")
     p.add_argument("--out", required=True, help="output directory for metrics.json and metrics.csv")
-    p.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
-                   help="which model of a run directory: final model, latest checkpoint, best periodic evaluation")
+    p.add_argument("--checkpoint", choices=CHECKPOINT_CHOICES, default="newest", help=CHECKPOINT_HELP)
     p.add_argument("--video", help="also write a video of the first episode (e.g. episode.mp4)")
+    p.add_argument("--no-baseline", action="store_true",
+                   help="do not score a trained agent beside the best constant stiffness on the same episodes")
     return p
 
 
@@ -155,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         doc = run(args.task, args.agent, args.episodes, args.seeds, args.out, checkpoint=args.checkpoint,
-                  video=args.video, argv=argv)
+                  video=args.video, argv=argv, baseline=not args.no_baseline)
     except (ConfigError, RunDirError, ValueError) as exc:
         print(f"vswrist evaluate: error: {exc}", file=sys.stderr)
         return 2
@@ -168,7 +186,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vswrist evaluate: error: {exc}", file=sys.stderr)
         return 1
     print(f"{doc['agent']} on {doc['task']}: {args.episodes} episodes x seeds {args.seeds}")
+    if "model_file" in doc:
+        print(f"model: {doc['model_file']}")
+    if "model_note" in doc:
+        print(doc["model_note"])
     print(format_summary(doc["summary"]))
+    if "baseline" in doc:
+        from vswrist_gym.agents.baseline import format_baseline
+
+        print(format_baseline(doc["baseline"]))
     print(f"metrics: {Path(args.out) / 'metrics.json'} and metrics.csv")
     if args.video:
         print(f"video: {args.video}")

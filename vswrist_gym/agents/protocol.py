@@ -34,6 +34,14 @@ METRICS = {
     "impact_speed": ("m/s", "Hammer: the head's speed normal to the anvil at the strike (0 if it missed)"),
 }
 TASK_METRICS = ("impact_speed",)  # read from the last step's info where the task reports them
+# the range each metric's value can take: a confidence interval is cut to it (the true mean lies inside, so the
+# cut interval covers it whenever the uncut one does); `success` is a rate, with its own interval (rate_ci)
+METRIC_BOUNDS = {
+    "return": (-math.inf, math.inf), "success": (0.0, 1.0), "rms_posture_error": (0.0, math.inf),
+    "peak_contact_force": (0.0, math.inf), "rms_contact_force": (0.0, math.inf), "elastic_energy": (0.0, math.inf),
+    "stiffness_used": (-math.inf, math.inf), "length": (0.0, math.inf), "impact_speed": (0.0, math.inf),
+}
+RATE_METRICS = ("success",)
 
 
 EVAL_SEED_MAX = (2**32 - 1 - EVAL_SEED_BASE) // 1000 - 1  # keeps every reset seed a valid 32-bit NumPy seed
@@ -265,8 +273,9 @@ def t_quantile(p: float, df: int) -> float:
     return float(t.ppf(p, df))
 
 
-def mean_ci(values, level: float = 0.95) -> dict:
-    """Mean and the t-based confidence interval of the mean; the interval is NaN for fewer than two values."""
+def mean_ci(values, level: float = 0.95, bounds: tuple[float, float] = (-math.inf, math.inf)) -> dict:
+    """Mean and the Student-t confidence interval of the mean (scipy.stats.t), cut to `bounds`, the range the
+    values can take; the interval is NaN for fewer than two values."""
     x = np.asarray([v for v in values if not math.isnan(v)], dtype=float)
     n = len(x)
     if n == 0:
@@ -275,11 +284,26 @@ def mean_ci(values, level: float = 0.95) -> dict:
     if n < 2:
         return {"mean": mean, "low": math.nan, "high": math.nan, "n": 1}
     half = t_quantile(0.5 + level / 2, n - 1) * float(x.std(ddof=1)) / math.sqrt(n)
-    return {"mean": mean, "low": mean - half, "high": mean + half, "n": n}
+    return {"mean": mean, "low": max(mean - half, bounds[0]), "high": min(mean + half, bounds[1]), "n": n}
+
+
+def rate_ci(outcomes, level: float = 0.95) -> dict:
+    """Rate of 0/1 outcomes with the Wilson score interval (scipy.stats.binomtest), which stays in [0, 1] and
+    has an interval for a single outcome too; NaN outcomes (not reported) are left out."""
+    from scipy.stats import binomtest
+
+    x = [float(v) for v in outcomes if not math.isnan(v)]
+    n = len(x)
+    if n == 0:
+        return {"mean": math.nan, "low": math.nan, "high": math.nan, "n": 0}
+    k = int(round(sum(x)))
+    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="wilson")
+    return {"mean": k / n, "low": float(ci.low), "high": float(ci.high), "n": n}
 
 
 def summarise(records: list[dict]) -> dict:
-    """Per metric: mean over the episodes of each seed, then mean and 95 % CI over seeds."""
+    """Per metric: mean over the episodes of each seed, then mean and 95 % CI over seeds (Student-t, cut to the
+    metric's range); a rate (success) gets the Wilson interval over all its episodes instead."""
     seeds = sorted({r["seed"] for r in records})
     out = {}
     for name in METRICS:
@@ -287,8 +311,17 @@ def summarise(records: list[dict]) -> dict:
         per_seed = [float(np.nanmean([r.get(name, math.nan) for r in records if r["seed"] == s]))
                     if not all(math.isnan(r.get(name, math.nan)) for r in records if r["seed"] == s) else math.nan
                     for s in seeds]
-        out[name] = {**mean_ci(per_seed), "per_seed": per_seed, "seeds": seeds, "unit": METRICS[name][0]}
+        if name in RATE_METRICS:
+            ci = rate_ci([_nan(r.get(name)) for r in records])
+            ci["mean"] = float(np.nanmean(per_seed)) if not all(math.isnan(v) for v in per_seed) else math.nan
+        else:
+            ci = mean_ci(per_seed, bounds=METRIC_BOUNDS.get(name, (-math.inf, math.inf)))
+        out[name] = {**ci, "per_seed": per_seed, "seeds": seeds, "unit": METRICS[name][0]}
     return out
+
+
+def _nan(value) -> float:
+    return math.nan if value is None else float(value)
 
 
 def json_safe(obj):

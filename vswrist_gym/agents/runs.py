@@ -551,11 +551,10 @@ def save_checkpoint(run_dir: Path, model, vecnorm, keep: int = 2, with_replay_bu
         if vecnorm is not None:
             save_vecnormalize(tmp / VECNORM_FILE, vecnorm)
         buffer = getattr(model, "replay_buffer", None)
-        if with_replay_buffer and buffer is not None:
-            if type(buffer) is ReplayBuffer:
-                save_replay_buffer(tmp / REPLAY_FILE, buffer)
-            else:  # other buffer classes (HER, dict observations): SB3's own pickle format
-                model.save_replay_buffer(tmp / REPLAY_LEGACY_FILE)
+        # other buffer classes (HER, dict observations) have no plain-array form and are not saved: SB3's own
+        # format is a pickle, which vswrist never reads back; such a run resumes with an empty buffer
+        if with_replay_buffer and type(buffer) is ReplayBuffer:
+            save_replay_buffer(tmp / REPLAY_FILE, buffer)
         if final.exists():
             shutil.rmtree(final)
         os.rename(tmp, final)
@@ -590,6 +589,28 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     return complete[0] if complete else None
 
 
+def checkpoint_step(folder: Path | None) -> int | None:
+    """The training step of a checkpoint folder step_<N> (None for no folder or another name)."""
+    try:
+        return int(folder.name.split("_", 1)[1]) if folder is not None and folder.name.startswith("step_") else None
+    except ValueError:
+        return None
+
+
+def final_model_step(run_dir: Path) -> int | None:
+    """The training step of the run's top-level model.zip, from run.json: `final_model_step` (written with it)
+    or, for runs written before that field, the step of the last 'finished' invocation; None when unknown."""
+    try:
+        doc = json.loads((Path(run_dir) / "run.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if isinstance(doc.get("final_model_step"), int):
+        return doc["final_model_step"]
+    finished = [h for h in doc.get("history", []) if isinstance(h, dict) and h.get("status") == "finished"]
+    step = finished[-1].get("reached_step") if finished else None
+    return int(step) if isinstance(step, (int, float)) else None
+
+
 def load_checkpoint(checkpoint: Path, algo: str, venv, normalize: bool, frame_stack: int = 1):
     """Model (with its normalisation and frame-stacking wrappers around `venv` and its replay buffer) from one
     checkpoint folder. Raises RunDirError naming the file when any part of it does not read back."""
@@ -598,23 +619,29 @@ def load_checkpoint(checkpoint: Path, algo: str, venv, normalize: bool, frame_st
         env = load_vecnormalize(checkpoint, venv)
         env.training = True
     env = wrap_frame_stack(env, frame_stack)
+    refuse_pickles(checkpoint)
     model = load_model(checkpoint / "model.zip", algo, env=env)
-    if getattr(model, "replay_buffer", None) is not None:
-        if (checkpoint / REPLAY_FILE).is_file():
-            load_replay_buffer(checkpoint / REPLAY_FILE, model.replay_buffer)
-        elif (checkpoint / REPLAY_LEGACY_FILE).is_file():  # SB3's pickle: trusted like model.zip itself
-            try:
-                model.load_replay_buffer(checkpoint / REPLAY_LEGACY_FILE)
-            except Exception as exc:  # noqa: BLE001
-                raise RunDirError(f"replay buffer {checkpoint / REPLAY_LEGACY_FILE} is corrupted "
-                                  f"({type(exc).__name__}: {exc})") from None
+    if getattr(model, "replay_buffer", None) is not None and (checkpoint / REPLAY_FILE).is_file():
+        load_replay_buffer(checkpoint / REPLAY_FILE, model.replay_buffer)
     return model, env
+
+
+def refuse_pickles(run_dir: Path) -> None:
+    """A replay buffer (or any file but normalisation statistics) saved as a pickle under `run_dir` is refused
+    unread: unpickling can run any code, and vswrist writes replay buffers as plain arrays only."""
+    found = sorted(p for p in Path(run_dir).rglob("*.pkl") if p.name != VECNORM_LEGACY_FILE)
+    if found:
+        more = f" (and {len(found) - 1} more)" if len(found) > 1 else ""
+        raise RunDirError(f"{found[0]}{more}: a pickle file, which vswrist never loads (unpickling can run any "
+                          f"code; replay buffers are saved as {REPLAY_FILE}); delete it to go on, a resumed run "
+                          f"then continues with an empty replay buffer")
 
 
 def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=print, frame_stack: int = 1):
     """(checkpoint, model, env) from the newest checkpoint that reads back completely; older ones are tried when
     the newest is damaged (truncated file, missing statistics), and the fallback is reported in one line.
     (None, None, venv) when the run has no checkpoint; RunDirError when none is intact."""
+    refuse_pickles(run_dir)
     found = checkpoints(run_dir)
     latest = latest_checkpoint(run_dir)
     if latest is not None and latest in found:  # latest.json first, then the others newest first
@@ -632,7 +659,7 @@ def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=prin
             what = ck.name if ck != Path(run_dir) else "the run's final model.zip"
             log(f"checkpoint {damaged[0]}; resuming from the newest intact one, {what}")
         if getattr(model, "replay_buffer", None) is not None and not any(
-                (ck / name).is_file() for name in (REPLAY_FILE, REPLAY_LEGACY_FILE)):
+                (ck / name).is_file() for name in (REPLAY_FILE,)):
             log(f"{ck / 'model.zip'} has no replay buffer beside it: training continues with an empty one")
         return ck, model, env
     if damaged:
@@ -786,7 +813,7 @@ class TrainedAgent:
     """A trained run (a `vswrist train` run directory or an RL Zoo experiment folder) as an agent with the SB3
     `predict` interface on raw (unnormalised) observations, with the run's own normalisation statistics."""
 
-    def __init__(self, run_dir: str | Path, checkpoint: str = "final"):
+    def __init__(self, run_dir: str | Path, checkpoint: str = "newest"):
         from gymnasium import spaces
 
         run_dir, implied = resolve_agent_path(run_dir)
@@ -796,10 +823,12 @@ class TrainedAgent:
         if not self.run_dir.is_dir():
             raise RunDirError(f"run directory not found: {self.run_dir}")
         self.kind = "vswrist"
+        self.note = None  # a line to show the user when the model evaluated is not the run's newest
         if not (self.run_dir / "config.yaml").is_file() and zoo_params_folder(self.run_dir) is not None:
             self.kind = "rl_zoo"
             self.cfg, self.seed, params = read_zoo_run(self.run_dir)
-            name = {"final": f"{params.name}.zip", "best": "best_model.zip"}.get(checkpoint)
+            name = {"final": f"{params.name}.zip", "newest": f"{params.name}.zip",
+                    "best": "best_model.zip"}.get(checkpoint)
             if name is None:
                 raise RunDirError(f"--checkpoint {checkpoint}: an RL Zoo folder has its final model and "
                                   f"best_model.zip (final or best)")
@@ -807,6 +836,7 @@ class TrainedAgent:
         else:
             self.cfg, self.seed = read_config(self.run_dir)
             model_path, stats = self._vswrist_files(checkpoint)
+        self.model_path = model_path
         self.model = load_model(model_path, self.cfg.algo)
         self.vecnorm = None
         if self.cfg.normalize is not None:
@@ -830,6 +860,22 @@ class TrainedAgent:
         return shape
 
     def _vswrist_files(self, checkpoint: str) -> tuple[Path, Path]:
+        final_step, latest = final_model_step(self.run_dir), latest_checkpoint(self.run_dir)
+        latest_step = checkpoint_step(latest)
+        newer = latest if latest is not None and (not (self.run_dir / "model.zip").exists() or (
+            latest_step is not None and (final_step is None or latest_step > final_step))) else None
+        if checkpoint == "newest":
+            if newer is None:
+                checkpoint = "final"
+            else:
+                checkpoint = "latest"
+                if (self.run_dir / "model.zip").exists():
+                    self.note = (f"{self.run_dir}: evaluating {newer.relative_to(self.run_dir)} (step {latest_step}), "
+                                 f"the newest model run.json accounts for; model.zip holds the older step "
+                                 f"{final_step if final_step is not None else 'unknown'} (--checkpoint final for it)")
+        elif checkpoint == "final" and newer is not None and (self.run_dir / "model.zip").exists():
+            self.note = (f"{self.run_dir}: evaluating model.zip (step {final_step if final_step is not None else '?'})"
+                         f" as asked; the run went on to step {latest_step} ({newer.relative_to(self.run_dir)})")
         if checkpoint == "final":
             folder = self.run_dir
             if not (folder / "model.zip").exists():
@@ -846,7 +892,7 @@ class TrainedAgent:
             if not (folder / "best_model.zip").exists():
                 raise RunDirError(f"no best model in {folder} (periodic evaluation never ran)")
         else:
-            raise ValueError(f"checkpoint must be final, latest or best, got {checkpoint!r}")
+            raise ValueError(f"checkpoint must be newest, final, latest or best, got {checkpoint!r}")
         name = "best_model.zip" if checkpoint == "best" else "model.zip"
         return folder / name, (self.run_dir if checkpoint == "best" else folder)
 

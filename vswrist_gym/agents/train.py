@@ -25,7 +25,7 @@ from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, RunConfi
 from vswrist_gym.agents.runs import (VECNORM_FILE, RunDirError, atomic_write_bytes, check_env_id, check_env_kwargs,
                                      check_new_out, check_seed, check_writable, created_root, latest_checkpoint,
                                      limit_threads, load_newest_intact, make_vec_env, model_bytes, override,
-                                     process_alive, read_config, save_checkpoint, save_vecnormalize, steps_done,
+                                     process_alive, read_config, refuse_pickles, save_checkpoint, save_vecnormalize, steps_done,
                                      this_process, update_run_json, versions, wrap_frame_stack, wrap_normalize,
                                      write_config)
 
@@ -34,6 +34,7 @@ class TrainingError(RuntimeError):
     """Training stopped because the environment or a worker failed; the run dir keeps its last checkpoint."""
 
 
+CHECKPOINT_SECONDS = 300.0  # wall time between checkpoints at most: a kill loses minutes, never hours
 EVAL_SEED_OFFSET = 10_000  # periodic-evaluation environments never share seeds with the training environments
 
 
@@ -124,18 +125,20 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
                         self.evaluations_successes = [list(r) for r in old["successes"][keep]]
 
     class AtomicCheckpointCallback(BaseCallback):
-        """Checkpoint model, normalisation statistics and (SAC) replay buffer every `every` steps, atomically."""
+        """Checkpoint model, normalisation statistics and (SAC) replay buffer atomically, every `every` steps or
+        `seconds` of wall time, whichever comes first."""
 
-        def __init__(self, every: int, keep: int):
+        def __init__(self, every: int, keep: int, seconds: float):
             super().__init__()
-            self.every, self.keep, self.last = every, keep, 0
+            self.every, self.keep, self.seconds, self.last, self.last_time = every, keep, seconds, 0, 0.0
 
         def _on_training_start(self) -> None:
-            self.last = self.model.num_timesteps
+            self.last, self.last_time = self.model.num_timesteps, time.monotonic()
 
         def _on_step(self) -> bool:
-            if self.model.num_timesteps - self.last >= self.every:
-                self.last = self.model.num_timesteps
+            steps = self.model.num_timesteps - self.last
+            if steps >= self.every or (steps > 0 and time.monotonic() - self.last_time >= self.seconds):
+                self.last, self.last_time = self.model.num_timesteps, time.monotonic()
                 save_checkpoint(run_dir, self.model, self.model.get_vec_normalize_env(), keep=self.keep)
                 update_run_json(run_dir, checkpoint_step=int(self.model.num_timesteps))
             return True
@@ -152,11 +155,13 @@ def _callbacks(run_dir: Path, cfg: RunConfig, n_envs: int, seed: int, resumed: b
                                 **{k: v for k, v in cfg.normalize.items() if k not in ("norm_reward",)})
     eval_env = wrap_frame_stack(eval_env, cfg.frame_stack)
     every = min(cfg.eval_freq, max(cfg.n_timesteps // 2, 1))  # a short run still gets a learning curve
+    # a short run still gets checkpoints: at least five over its budget, and one every few minutes of wall time
+    ck_every = min(cfg.checkpoint_freq, max(cfg.n_timesteps // 5, 1))
     evaluator = HistoryEvalCallback(eval_env, n_eval_episodes=cfg.n_eval_episodes,
                                     eval_freq=max(every // n_envs, 1),
                                     log_path=str(run_dir / "eval"), best_model_save_path=str(run_dir / "eval"),
                                     deterministic=True, verbose=0)
-    return [evaluator, AtomicCheckpointCallback(cfg.checkpoint_freq, cfg.keep_checkpoints)], eval_env
+    return [evaluator, AtomicCheckpointCallback(ck_every, cfg.keep_checkpoints, CHECKPOINT_SECONDS)], eval_env
 
 
 RUN_DIR_MARKER = "config.yaml"  # what makes a folder a run directory (see vswrist_gym.agents.runs)
@@ -169,6 +174,7 @@ def check_run_out(run_dir: Path, resume: bool) -> None:
         if not run_dir.is_dir():
             raise RunDirError(f"--out {run_dir}: run directory not found (nothing to resume)")
         read_config(run_dir)  # a clear error when config.yaml is missing or damaged
+        refuse_pickles(run_dir)
         check_writable(run_dir)
         return
     if (run_dir / RUN_DIR_MARKER).exists():
@@ -337,7 +343,7 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
         if vn is not None:
             save_vecnormalize(run_dir / VECNORM_FILE, vn)
         update_run_json(run_dir, status="finished", num_timesteps=int(model.num_timesteps),
-                        checkpoint_step=int(model.num_timesteps),
+                        checkpoint_step=int(model.num_timesteps), final_model_step=int(model.num_timesteps),
                         history={"status": "finished", "reached_step": int(model.num_timesteps), "time": time.time()})
     finally:
         try:

@@ -35,6 +35,12 @@ class BatchVecEnv(VecEnv):
         self.metadata = self.venv.metadata
         self._actions: np.ndarray | None = None
 
+    @staticmethod
+    def from_vector_env(env) -> "VectorVecEnv":
+        """SB3's VecEnv over an existing Gymnasium ``VectorEnv`` (``gym.make_vec(id, N)`` in any vectorization
+        mode, with vector wrappers or not): ``PPO("MlpPolicy", BatchVecEnv.from_vector_env(envs))``."""
+        return VectorVecEnv(env)
+
     def reset(self):
         opts = self._options
         if any(opts) and any(o != opts[0] for o in opts):
@@ -86,3 +92,106 @@ class BatchVecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class, indices: VecEnvIndices = None) -> list[bool]:
         return [isinstance(e, wrapper_class) for e in self._targets(indices)]  # the worlds are bare envs
+
+
+def _unbatch_infos(infos: dict, n: int) -> list[dict]:
+    """Gymnasium's vector infos (key -> array over envs, with a ``_key`` mask of the envs that have it) as one
+    dict per env, as SB3 takes them."""
+    out: list[dict] = [{} for _ in range(n)]
+    for key, value in infos.items():
+        if key.startswith("_"):
+            continue
+        mask = infos.get(f"_{key}", np.ones(n, dtype=bool))
+        for i in np.flatnonzero(mask):
+            out[i][key] = _unbatch_infos(value, n)[i] if isinstance(value, dict) else value[i]
+    return out
+
+
+class VectorVecEnv(VecEnv):
+    """SB3 VecEnv over any Gymnasium ``VectorEnv`` (``BatchVecEnv.from_vector_env``). SB3 needs a finished
+    env's reset observation in the same step: with autoreset SAME_STEP the vector env gives it (and the last
+    observation in ``info["final_obs"]``); with NEXT_STEP or DISABLED the finished envs are reset at once
+    through ``reset(options={"reset_mask": done})``. Seeds set by ``seed()`` apply at the next full reset."""
+
+    def __init__(self, env):
+        from gymnasium.vector import AutoresetMode, VectorEnv
+
+        if not isinstance(env, VectorEnv):
+            raise TypeError(f"from_vector_env takes a gymnasium.vector.VectorEnv (gym.make_vec), got "
+                            f"{type(env).__name__}")
+        self.venv = env
+        self._same_step = env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP) == AutoresetMode.SAME_STEP
+        super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+        self.render_mode = env.render_mode
+        self.metadata = env.metadata
+        self._actions: np.ndarray | None = None
+
+    def reset(self):
+        opts = self._options
+        if any(opts) and any(o != opts[0] for o in opts):
+            raise ValueError("from_vector_env resets every env with the same options; got different ones per env")
+        seeds = list(self._seeds)
+        obs, infos = self.venv.reset(seed=None if all(s is None for s in seeds) else seeds, options=opts[0] or None)
+        self.reset_infos = _unbatch_infos(infos, self.num_envs)
+        self._reset_seeds()
+        self._reset_options()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self):
+        obs, rew, term, trunc, infos = self.venv.step(self._actions)
+        done = np.logical_or(term, trunc)
+        out = _unbatch_infos(infos, self.num_envs)
+        if done.any():
+            if self._same_step:
+                for i in np.flatnonzero(done):
+                    final = dict(out[i].get("final_info") or {})
+                    final["terminal_observation"] = out[i]["final_obs"]
+                    self.reset_infos[i] = {k: v for k, v in out[i].items() if k not in ("final_obs", "final_info")}
+                    out[i] = final
+            else:
+                obs = np.array(obs, copy=True)
+                fresh, reset_infos = self.venv.reset(options={"reset_mask": done})
+                resets = _unbatch_infos(reset_infos, self.num_envs)
+                for i in np.flatnonzero(done):
+                    out[i]["terminal_observation"] = obs[i].copy()
+                    self.reset_infos[i] = resets[i]
+                obs[done] = np.asarray(fresh)[done]
+        for i in range(self.num_envs):
+            out[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+        return obs, np.asarray(rew, dtype=np.float32), done, out
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        if self.render_mode != "rgb_array":
+            return [None] * self.num_envs
+        return list(self.venv.render())
+
+    def _target(self):
+        envs = getattr(self.venv.unwrapped, "envs", None)
+        if envs is None:
+            raise AttributeError(f"{type(self.venv.unwrapped).__name__} does not expose its envs in this process")
+        return envs
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        envs = self._target()
+        return [getattr(envs[i], attr_name) for i in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        envs = self._target()
+        for i in self._get_indices(indices):
+            setattr(envs[i], attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list:
+        envs = self._target()
+        return [getattr(envs[i], method_name)(*method_args, **method_kwargs) for i in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices: VecEnvIndices = None) -> list[bool]:
+        envs = getattr(self.venv.unwrapped, "envs", None)
+        if envs is None:
+            return [False] * len(self._get_indices(indices))
+        return [isinstance(envs[i], wrapper_class) for i in self._get_indices(indices)]

@@ -141,8 +141,10 @@ class VSWristVectorEnv(VectorEnv):
     """``num_envs`` worlds of one task (``env_id``), stepped together; see the module docstring.
 
     ``config``/``overrides``: as for ``gym.make`` (the same for every world). ``threads``: physics threads
-    (default: the cores available; 1 = serial). ``autoreset_mode``: NEXT_STEP (Gymnasium's default) or
-    SAME_STEP (the reset observation is returned at once, the last one in ``info["final_obs"]``).
+    (default: the cores available; 1 = serial). ``autoreset_mode``: NEXT_STEP (Gymnasium's default),
+    SAME_STEP (the reset observation is returned at once, the last one in ``info["final_obs"]``) or DISABLED
+    (a world that ended stays ended until ``reset(options={"reset_mask": mask})`` restarts it; stepping it
+    before raises). After ``close()``, ``step`` and ``reset`` raise ``ClosedEnvironmentError``.
     ``array_step``: compute the step's common work over arrays (default: with ``ARRAY_MIN_WORLDS`` worlds or
     more) or world by world through the single env's phases; both give the same numbers.
     """
@@ -154,8 +156,6 @@ class VSWristVectorEnv(VectorEnv):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.autoreset_mode = AutoresetMode(autoreset_mode)
-        if self.autoreset_mode == AutoresetMode.DISABLED:
-            raise ValueError("autoreset_mode must be NEXT_STEP or SAME_STEP (worlds end their own episodes)")
         cls = _env_class(env_id)
         self.env_id = env_id
         self.num_envs = int(num_envs)
@@ -477,6 +477,7 @@ class VSWristVectorEnv(VectorEnv):
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         """Reset every world (world i with ``seed + i``); ``options["reset_mask"]`` (bool (N,)) resets only
         those worlds, as Gymnasium's vector envs do."""
+        self._check_open("reset")
         seeds = self._seeds(seed)
         mask = np.ones(self.num_envs, dtype=bool)
         if options and "reset_mask" in options:
@@ -535,10 +536,15 @@ class VSWristVectorEnv(VectorEnv):
         """Returns the flat observations (N, obs_size), rewards, terminated, truncated and the infos as
         (cols, rows, extras): ``cols`` = (world indices, {key: array over those worlds}), ``rows`` = {world: its
         whole info dict} (worlds reset in this step), ``extras`` = {world: more keys} (a divergence's message)."""
+        self._check_open("step")
         acts = self.check_actions(actions)  # before anything changes: a bad batch steps no world
         if not self._started:
             raise ResetNeeded("step() called before the first reset() (or after a step raised inside a task's "
                               "code); call reset() to start the episodes")
+        if self.autoreset_mode == AutoresetMode.DISABLED and self._autoreset.any():
+            ended = np.flatnonzero(self._autoreset).tolist()
+            raise ResetNeeded(f"worlds {ended} ended their episodes and autoreset_mode is DISABLED: reset them "
+                              f"first with reset(options={{'reset_mask': mask}})")
         envs = self.envs
         n = self.num_envs
         resetting = self._autoreset
@@ -1068,6 +1074,12 @@ class VSWristVectorEnv(VectorEnv):
             values = [values] * self.num_envs
         for e, v in zip(self.envs, values):
             setattr(e, name, v)
+
+    def _check_open(self, what: str) -> None:
+        if self.closed:
+            from gymnasium.error import ClosedEnvironmentError
+
+            raise ClosedEnvironmentError(f"{what}() on a closed {self!r}: make a new one")
 
     def close_extras(self, **kwargs) -> None:
         self._close_pool()

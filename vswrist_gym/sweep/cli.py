@@ -92,6 +92,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     command = "vswrist sweep " + shlex.join(argv)
     t0, load_start = time.time(), os.getloadavg()[0]
+    if args.address:
+        from vswrist_gym.sweep.tune_runner import ClusterError, init_ray
+
+        try:  # the cluster first: a sweep that cannot start writes nothing (a rerun needs no --resume)
+            init_ray(args.address)
+        except ClusterError as exc:
+            print(f"vswrist sweep: error: {exc}", file=sys.stderr)
+            return 2
     sweep.runs_dir.mkdir(parents=True, exist_ok=True)
     record = sweep.runs_dir / RECORD_FILE
     if not record.is_file():

@@ -26,6 +26,40 @@ os.environ.setdefault("TUNE_GLOBAL_CHECKPOINT_S", "2")
 SEARCH_METRIC = "eval_return"  # mean over the training seeds of the periodic evaluation (seed + 10,000 episodes)
 
 
+class ClusterError(RuntimeError):
+    """`ray.init(address=...)` failed: one line with what Ray said and what to check."""
+
+    def __init__(self, address: str, exc: Exception, token: str | None):
+        what = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        auth = (f"this driver used token authentication ({token})" if token else
+                "this driver had no Ray auth token (RAY_AUTH_MODE unset and no ~/.ray/auth_token)")
+        super().__init__(f"cannot join the Ray cluster at {address} ({type(exc).__name__}: {what}); {auth}. A "
+                         f"cluster started with `ray start` where ~/.ray/auth_token exists uses token "
+                         f"authentication (Ray >= 2.52): give this machine that token (RAY_AUTH_TOKEN, or the "
+                         f"file from `ray get-auth-token` on the head), or start the cluster with "
+                         f"RAY_AUTH_MODE=disabled; see docs/training.md")
+
+
+def use_cluster_token() -> str | None:
+    """Ray (2.52 on) authenticates with a token when `ray start` finds one (~/.ray/auth_token, which any local
+    `ray.init()` creates), but a driver given an explicit address never turns it on by itself: it then fails
+    after about 40 s of InvalidAuthToken. Where RAY_AUTH_MODE is unset and a token is available, the driver
+    uses it, as Ray does for `address='auto'`. Returns where the token came from, or None."""
+    if os.environ.get("RAY_AUTH_MODE") is not None:
+        return f"RAY_AUTH_MODE={os.environ['RAY_AUTH_MODE']}" if os.environ["RAY_AUTH_MODE"] == "token" else None
+    source = ("RAY_AUTH_TOKEN" if os.environ.get("RAY_AUTH_TOKEN") else
+              "RAY_AUTH_TOKEN_PATH" if os.environ.get("RAY_AUTH_TOKEN_PATH") else
+              "~/.ray/auth_token" if (Path.home() / ".ray" / "auth_token").is_file() else None)
+    if source is None:
+        return None
+    try:  # Ray's own switch: sets RAY_AUTH_MODE=token and refreshes its cached configuration
+        from ray._private.authentication.authentication_token_setup import _enable_token_auth
+    except ImportError:  # a Ray without token authentication
+        return None
+    _enable_token_auth()
+    return source
+
+
 def init_ray(address: str | None, log=print) -> dict:
     """Join the cluster at `address`, or start Ray on this machine with its CPUs; returns the cluster resources."""
     import ray
@@ -33,7 +67,11 @@ def init_ray(address: str | None, log=print) -> dict:
     if ray.is_initialized():
         return ray.cluster_resources()
     if address:
-        ray.init(address=address, log_to_driver=False, configure_logging=False)
+        token = use_cluster_token()
+        try:
+            ray.init(address=address, log_to_driver=False, configure_logging=False)
+        except Exception as exc:  # noqa: BLE001 - Ray raises ConnectionError, AuthenticationError, RuntimeError
+            raise ClusterError(address, exc, token) from None
     else:
         # Ray runs its workers at niceness 15 by default: on a shared machine the trials would yield to every other
         # job, where the same `vswrist train` run by hand would not (3.5x slower per trial under a load of 8

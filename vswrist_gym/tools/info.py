@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 
 import numpy as np
 
 from ..kinematics import WristKinematics
-from ..params import PRESETS, load_params
+from ..params import PRESETS, ParamsError, load_params
 from ..stiffness import coupler_stiffness, lambda_range, max_leg_torque
+
+
+def env_preset() -> str:
+    """The device preset the environments are built on: the `params` of their shared defaults.yaml."""
+    from ..envs.config import ENV_CONFIG_DIR, _read
+
+    return str(_read(ENV_CONFIG_DIR / "defaults.yaml")["params"])
 
 
 def self_check(kin: WristKinematics, samples: int = 500, seed: int = 0) -> float:
@@ -25,11 +33,21 @@ def self_check(kin: WristKinematics, samples: int = 500, seed: int = 0) -> float
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vswrist info", description=__doc__)
-    parser.add_argument("--params", default=None, help=f"preset ({', '.join(PRESETS)}) or YAML file; default paper")
+    env_params = env_preset()
+    parser.add_argument("--params", default=None,
+                        help=f"preset ({', '.join(PRESETS)}) or YAML file; default: the environments' preset "
+                             f"({env_params})")
     args = parser.parse_args(argv)
-    params = load_params(args.params)
+    source = env_params if args.params is None else args.params
+    try:
+        params = load_params(source)
+    except ParamsError as exc:
+        print(f"vswrist info: error: --params: {exc}", file=sys.stderr)
+        return 2
     kin = WristKinematics(params)
-    print(f"VS-Wrist parameter preset: {params.name}")
+    whose = " (the environments' preset)" if params.name == env_params else \
+        f" (the environments use {env_params})"
+    print(f"VS-Wrist parameter preset: {params.name}{whose}")
     for section in dataclasses.fields(params):
         if section.name == "name":
             continue

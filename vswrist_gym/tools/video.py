@@ -20,11 +20,14 @@ Rendering follows the package's rule (``vswrist_gym/__init__.py``): EGL on Linux
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from vswrist_gym import TASKS, resolve_id
+from vswrist_gym.agents.evaluate import CHECKPOINT_CHOICES, CHECKPOINT_HELP
 from vswrist_gym.agents.hparams import ALGO_NAMES
 
 
@@ -66,6 +69,27 @@ def stateful_policy(agent):
         return action
     return policy
 
+def check_video_args(args) -> None:
+    """Everything the command line fixes, before an environment is built: the seed's range, the frame size and
+    that --out can be written (its folder exists or can be made, is writable, and --out is not a folder)."""
+    from vswrist_gym.agents.runs import RunDirError, check_seed, check_writable
+    from vswrist_gym.envs.config import OFFSCREEN_SIZE
+
+    check_seed(args.seed)
+    for name, value, top in (("--width", args.width, OFFSCREEN_SIZE[0]), ("--height", args.height, OFFSCREEN_SIZE[1])):
+        if not 16 <= value <= top:
+            raise ValueError(f"{name} must be an integer in [16, {top}] pixels, got {value}")
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder; give a file name such as episode.mp4")
+    try:
+        check_writable(out.parent, "--out's folder")
+    except RunDirError as exc:
+        raise ValueError(str(exc)) from None
+    if out.exists() and not os.access(out, os.W_OK):
+        raise ValueError(f"--out {out} exists and is not writable")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist video", description=__doc__.split("\n\n")[0])
     ap.add_argument("--task", required=True, type=resolve_id,
@@ -74,23 +98,30 @@ def main(argv: list[str] | None = None) -> int:
                     help="reference | adaptive | random | analytic[:S] | pretrained:TASK[:TRACK] | RUN_DIR | "
                          "RL Zoo folder | model file in one")
     ap.add_argument("--algo", choices=ALGO_NAMES, help="check that a trained agent is of this algorithm")
-    ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
-                    help="which model of a run directory (as in vswrist evaluate)")
+    ap.add_argument("--checkpoint", choices=CHECKPOINT_CHOICES, default="newest", help=CHECKPOINT_HELP)
     ap.add_argument("--out", required=True, help="output .mp4 file")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stiffness", type=float, default=0.0, help="stiffness command of the reference agent")
     ap.add_argument("--camera", default=None, help="camera name (default: the task's render.camera)")
     ap.add_argument("--width", type=int, default=480)
     ap.add_argument("--height", type=int, default=360)
+    ap.add_argument("--no-baseline", action="store_true",
+                    help="do not run the best constant stiffness on the same episode beside a trained agent")
     args = ap.parse_args(argv)
     if not -1.0 <= args.stiffness <= 1.0:
         ap.error("--stiffness must be in [-1, 1]")
     if not args.out.endswith(".mp4"):
         ap.error("--out must name an .mp4 file")
+    try:
+        check_video_args(args)
+    except ValueError as exc:
+        print(f"vswrist video: error: {exc}", file=sys.stderr)
+        return 2
     import gymnasium as gym
     import imageio
 
     import vswrist_gym  # noqa: F401
+    from vswrist_gym.envs.config import EnvConfigError
 
     render = {"width": args.width, "height": args.height}
     if args.camera:
@@ -111,10 +142,16 @@ def main(argv: list[str] | None = None) -> int:
         except (ConfigError, RunDirError) as exc:
             print(f"vswrist video: error: {exc}", file=sys.stderr)
             return 2
+        if spec.trained is not None and spec.trained.note:
+            print(spec.trained.note)
         kwargs = dict(spec.env_kwargs)  # the run's own settings (action mode), rendering added to them
     config = dict(kwargs.pop("config", None) or {})
     config["render"] = {**(config.get("render") or {}), **render}
-    env = gym.make(env_id, render_mode="rgb_array", config=config, **kwargs)
+    try:
+        env = gym.make(env_id, render_mode="rgb_array", config=config, **kwargs)
+    except EnvConfigError as exc:  # --camera, --width, --height: the environment's render settings
+        print(f"vswrist video: error: {exc}", file=sys.stderr)
+        return 2
     if args.agent == "reference":
         policy = reference_agent(env, args.stiffness)
     elif args.agent == "adaptive":
@@ -134,16 +171,33 @@ def main(argv: list[str] | None = None) -> int:
     obs, info = env.reset(seed=args.seed)
     fps = env.unwrapped.metadata["render_fps"]
     total, done = 0.0, False
-    with imageio.get_writer(args.out, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer:
-        writer.append_data(env.render())
-        while not done:
-            obs, r, term, trunc, info = env.step(policy(obs))
-            total += r
-            done = term or trunc
+    out = Path(args.out)
+    # written under a temporary name and renamed at the end: a failed or interrupted video never replaces a file
+    tmp = out.with_name(f".{out.stem}.partial.mp4")
+    try:
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer:
             writer.append_data(env.render())
-    env.close()
+            while not done:
+                obs, r, term, trunc, info = env.step(policy(obs))
+                total += r
+                done = term or trunc
+                writer.append_data(env.render())
+        os.replace(tmp, out)
+    except OSError as exc:
+        print(f"vswrist video: error: writing {out}: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        tmp.unlink(missing_ok=True)
+        env.close()
     print(f"{args.out}: {args.task}, agent {args.agent}, seed {args.seed}: return {total:.2f}, "
           f"success {info['is_success']}, peak contact force {info['peak_contact_force']:.2f} N")
+    if not builtin and spec.kind == "trained" and not args.no_baseline:
+        from vswrist_gym.agents.baseline import best_constant_episode
+
+        best = best_constant_episode(env_id, args.seed, env_kwargs=spec.env_kwargs)
+        if best is not None:
+            print(f"best constant stiffness on the same episode: {best[0]}, return {best[1]:.2f}; "
+                  f"difference (agent - best constant) {total - best[1]:+.2f}")
     return 0
 
 

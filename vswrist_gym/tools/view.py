@@ -22,6 +22,7 @@ import sys
 import time
 
 from vswrist_gym import TASKS, resolve_id
+from vswrist_gym.agents.evaluate import CHECKPOINT_CHOICES, CHECKPOINT_HELP
 
 KEY_SPACE, KEY_RIGHT, KEY_BACKSPACE = 32, 262, 259  # GLFW key codes, as the viewer's key_callback reports them
 
@@ -164,8 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--agent", default="analytic",
                     help="analytic | analytic:STIFFNESS | pretrained:TASK[:TRACK] | RUN_DIR | RL Zoo folder "
                          "(default: analytic)")
-    ap.add_argument("--checkpoint", choices=("final", "latest", "best"), default="final",
-                    help="which model of a run directory")
+    ap.add_argument("--checkpoint", choices=CHECKPOINT_CHOICES, default="newest", help=CHECKPOINT_HELP)
     ap.add_argument("--seed", type=int, default=0, help="seed of the first episode (the next ones count up)")
     ap.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall-clock second (default 1)")
     ap.add_argument("--duration", type=float, default=None, help="close after this many wall-clock seconds")
