@@ -55,7 +55,8 @@ def sac_config(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def sac_run(tmp_path_factory, sac_config) -> Path:
-    """A finished tiny SAC run with VecNormalize: checkpoints at steps 400 and 600 (keep 2)."""
+    """A finished tiny SAC run with VecNormalize: checkpoints at steps 480 and 600 (keep 2): every
+    min(checkpoint_freq 200, budget 600 / 5) = 120 steps."""
     out = tmp_path_factory.mktemp("sac") / "run"
     train_mod.train(TASK, "sac", out, config=sac_config, seed=1, progress=False, log=lambda *_: None)
     return out
@@ -275,14 +276,14 @@ def test_resume_falls_back_to_the_newest_intact_checkpoint(sac_run, tmp_path, da
     run = tmp_path / "run"
     shutil.copytree(sac_run, run)
     found = runs.checkpoints(run)
-    assert [c.name for c in found] == ["step_0000000600", "step_0000000400"]
+    assert [c.name for c in found] == ["step_0000000600", "step_0000000480"]
     newest = found[0] / damage
     newest.write_bytes(newest.read_bytes()[: newest.stat().st_size // 2])  # truncated, as by a full disk
     logs = []
     train_mod.train(TASK, "sac", run, timesteps=800, resume=True, progress=False, log=logs.append)
     said = [m for m in logs if "intact" in m]
-    assert len(said) == 1 and damage in said[0] and "step_0000000400" in said[0], logs
-    assert any("resuming" in m and "400 of 800" in m for m in logs), logs
+    assert len(said) == 1 and damage in said[0] and "step_0000000480" in said[0], logs
+    assert any("resuming" in m and "480 of 800" in m for m in logs), logs
     doc = json.loads((run / "run.json").read_text())
     assert doc["status"] == "finished" and doc["num_timesteps"] == 800
 
@@ -300,7 +301,7 @@ def test_resume_with_no_intact_checkpoint_says_so_and_changes_nothing(sac_run, t
     assert any("final model.zip (600 of 800" in m for m in logs) and any("empty one" in m for m in logs), logs
     (run / "model.zip").write_bytes(b"PK\x03\x04 truncated")
     before = _tree(run)
-    with pytest.raises(runs.RunDirError, match="no intact checkpoint.*step_0000000600.*step_0000000400"):
+    with pytest.raises(runs.RunDirError, match="no intact checkpoint.*step_0000000600.*step_0000000480"):
         train_mod.train(TASK, "sac", run, timesteps=800, resume=True, progress=False, log=lambda *_: None)
     assert _tree(run) == before
 
@@ -473,3 +474,80 @@ def test_checkpoints_and_final_files_hold_no_pickle_but_the_model(sac_run):
     names = {p.name for p in sac_run.rglob("*") if p.is_file()}
     assert runs.VECNORM_FILE in names and runs.REPLAY_FILE in names
     assert not {n for n in names if n.endswith(".pkl")}
+
+
+# ------------------------------------------------------------------------------------------- no code from data
+
+
+def test_a_planted_replay_buffer_pickle_is_refused_unread(sac_run, tmp_path):
+    """A `replay_buffer.pkl` in a checkpoint (SB3's pickle format) is never unpickled: `--resume` stops with one
+    line naming it before anything is built, the payload does not run, and the run is unchanged."""
+    sentinel = tmp_path / "executed"
+    run = tmp_path / "run"
+    shutil.copytree(sac_run, run)
+    latest = runs.latest_checkpoint(run)
+    (latest / "replay_buffer.pkl").write_bytes(pickle.dumps(_Evil(sentinel)))
+    before = _tree(run)
+    line = one_line_error(vswrist("train", "--task", TASK, "--algo", "sac", "--out", run, "--resume", "--timesteps",
+                                  800, "--no-progress"), "train")
+    assert "replay_buffer.pkl" in line and "never loads" in line
+    assert not sentinel.exists() and _tree(run) == before
+    with pytest.raises(runs.RunDirError, match="never loads"):
+        runs.load_checkpoint(latest, "sac", None, normalize=False)
+    assert not sentinel.exists()
+
+
+# ------------------------------------------------------------------------------------------- lost or stale work
+
+
+def test_a_short_run_checkpoints_five_times_over_its_budget(tmp_path, monkeypatch):
+    """checkpoint_freq as large as the budget: checkpoints still come every budget / 5 steps, and every
+    CHECKPOINT_SECONDS of wall time (0 here: at every step)."""
+    saved = []
+    real = train_mod.save_checkpoint
+
+    def record(run_dir, model, *args, **kwargs):
+        saved.append(int(model.num_timesteps))
+        return real(run_dir, model, *args, **kwargs)
+
+    monkeypatch.setattr(train_mod, "save_checkpoint", record)
+    cfg = tmp_path / "sac.yaml"
+    cfg.write_text(yaml.safe_dump({TASK: {**TINY_SAC, "n_timesteps": 500, "checkpoint_freq": 500}}))
+    train_mod.train(TASK, "sac", tmp_path / "a", config=cfg, seed=0, progress=False, log=lambda *_: None)
+    assert saved == [100, 200, 300, 400, 500, 500]  # the callback's five, then the final save
+    saved.clear()
+    monkeypatch.setattr(train_mod, "CHECKPOINT_SECONDS", 0.0)
+    cfg.write_text(yaml.safe_dump({TASK: {**TINY_SAC, "n_timesteps": 120, "checkpoint_freq": 500,
+                                          "learning_starts": 50}}))
+    train_mod.train(TASK, "sac", tmp_path / "b", config=cfg, seed=0, progress=False, log=lambda *_: None)
+    assert saved[:-1] == list(range(1, 121))
+
+
+def test_evaluate_takes_the_newest_model_run_json_accounts_for(sac_run, tmp_path):
+    """A run extended with --resume and stopped before its new end: model.zip is older than the newest checkpoint.
+    The default evaluates the checkpoint and says so; --checkpoint final takes model.zip, with a line."""
+    run = tmp_path / "run"
+    shutil.copytree(sac_run, run)
+    doc = json.loads((run / "run.json").read_text())
+    assert doc["final_model_step"] == 600
+    newer = run / "checkpoints" / "step_0000000700"
+    shutil.copytree(run / "checkpoints" / "step_0000000600", newer)
+    (run / "checkpoints" / "latest.json").write_text(json.dumps({"step": 700, "dir": newer.name}))
+    agent = runs.TrainedAgent(run)
+    assert agent.model_path == newer / "model.zip"
+    assert "step 700" in agent.note and "600" in agent.note
+    final = runs.TrainedAgent(run, checkpoint="final")
+    assert final.model_path == run / "model.zip" and "as asked" in final.note and "700" in final.note
+    # a run.json written before final_model_step: the last finished invocation's step stands for model.zip
+    del doc["final_model_step"]
+    (run / "run.json").write_text(json.dumps(doc))
+    assert runs.final_model_step(run) == 600
+    assert runs.TrainedAgent(run).model_path == newer / "model.zip"
+    # a finished run: model.zip is the newest, and nothing is said
+    plain = runs.TrainedAgent(sac_run)
+    assert plain.model_path == sac_run / "model.zip" and plain.note is None
+    res = vswrist("evaluate", "--task", TASK, "--agent", run, "--episodes", 1, "--seeds", 0, "--out", tmp_path / "ev")
+    assert res.returncode == 0, res.stderr
+    assert f"model: {newer / 'model.zip'}" in res.stdout and "newest model run.json accounts for" in res.stdout
+    meta = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert meta["model_file"] == str(newer / "model.zip")

@@ -81,7 +81,7 @@ Python (`pip install mujoco=={mujoco.__version__}`):
 
 ```python
 import mujoco
-mujoco.mj_loadPluginLibrary("{lib}")
+mujoco.mj_loadPluginLibrary("./{lib}")  # a path: a bare name is searched in the system's folders
 model = mujoco.MjModel.from_xml_path("{xml}")
 data = mujoco.MjData(model)
 mujoco.mj_resetDataKeyframe(model, data, model.key("home_stiff").id)  # or "home": no preload
@@ -91,7 +91,7 @@ mujoco.mj_step(model, data, 100)
 C:
 
 ```c
-mj_loadPluginLibrary("{lib}");
+mj_loadPluginLibrary("./{lib}");
 char error[1000];
 mjModel* m = mj_loadXML("{xml}", NULL, error, sizeof(error));
 ```
