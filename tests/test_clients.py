@@ -115,24 +115,30 @@ def test_rate_interval_is_wilson_and_stays_in_the_unit_range():
 
 
 def test_evaluate_scores_a_shipped_agent_beside_the_best_constant(tmp_path):
+    """The best constant is the fixed stiffness with the highest mean return on the agent's episodes, each
+    constant run here on its own (one env, episode after episode, not the batch `evaluate` uses), on the task
+    as `vswrist compare` and the shipped cards run the analytic agent (its own action mode)."""
+    import gymnasium as gym
+
+    from vswrist_gym.agents.analytic import AnalyticAgent
     from vswrist_gym.agents.baseline import DEFAULT_STIFFNESS_LEVELS
+    from vswrist_gym.agents.protocol import reset_seed, run_episode
 
     res = vswrist("evaluate", "--task", "LoadHold", "--agent", "pretrained:LoadHold", "--episodes", "2", "--seeds",
                   "3", "--out", tmp_path / "agent")
     assert res.returncode == 0, res.stderr
     doc = json.loads((tmp_path / "agent" / "metrics.json").read_text())
     base = doc["baseline"]
-    # the constants on their own, through the command a user would run
-    means = {}
-    for k in DEFAULT_STIFFNESS_LEVELS:
-        assert vswrist("evaluate", "--task", "LoadHold", "--agent", f"analytic:{k}", "--episodes", "2", "--seeds",
-                       "3", "--out", tmp_path / f"k{k}").returncode == 0
-        means[k] = json.loads((tmp_path / f"k{k}" / "metrics.json").read_text())["summary"]["return"]["mean"]
-    best = max(means, key=means.get)
-    assert base["stiffness"] == best and base["return"]["mean"] == pytest.approx(means[best], rel=1e-12)
-    # the paired difference's mean is the difference of the means (the same episodes on both sides)
-    agent = doc["summary"]["return"]["mean"]
-    assert base["paired_difference_return"]["mean"] == pytest.approx(agent - means[best], rel=1e-9, abs=1e-9)
+    env = gym.make(doc["task"])
+    returns = {k: [run_episode(env, AnalyticAgent(env, stiffness=k), reset_seed(3, i))[0]["return"] for i in (0, 1)]
+               for k in DEFAULT_STIFFNESS_LEVELS}
+    env.close()
+    best = max(returns, key=lambda k: np.mean(returns[k]))
+    assert base["stiffness"] == best and base["return"]["mean"] == pytest.approx(np.mean(returns[best]), rel=1e-9)
+    # the paired difference, episode by episode against the agent's own returns
+    agent = {e["episode"]: e["return"] for e in doc["episodes"]}
+    diffs = [agent[i] - returns[best][i] for i in (0, 1)]
+    assert base["paired_difference_return"]["mean"] == pytest.approx(np.mean(diffs), rel=1e-9, abs=1e-9)
     assert base["paired_difference_return"]["n"] == 2
     assert "best constant stiffness on the same episodes: analytic:" in res.stdout
     assert "paired difference in return" in res.stdout
@@ -140,6 +146,20 @@ def test_evaluate_scores_a_shipped_agent_beside_the_best_constant(tmp_path):
                   "3", "--out", tmp_path / "plain", "--no-baseline")
     assert res.returncode == 0 and "best constant" not in res.stdout
     assert "baseline" not in json.loads((tmp_path / "plain" / "metrics.json").read_text())
+
+
+def test_video_shows_the_best_constant_of_the_same_episode(tmp_path):
+    res = vswrist("video", "--task", "LoadHold", "--agent", "pretrained:LoadHold", "--seed", "4", "--width", "64",
+                  "--height", "48", "--out", tmp_path / "v.mp4")
+    assert res.returncode == 0, res.stderr
+    import re
+
+    agent = float(re.search(r"return (-?[\d.]+),", res.stdout).group(1))
+    m = re.search(r"best constant stiffness on the same episode: analytic:([-+.\d]+), return (-?[\d.]+); "
+                  r"difference \(agent - best constant\) ([-+.\d]+)", res.stdout)
+    assert m, res.stdout
+    assert float(m.group(3)) == pytest.approx(agent - float(m.group(2)), abs=0.011)
+    assert (tmp_path / "v.mp4").stat().st_size > 0 and not list(tmp_path.glob(".*partial*"))
 
 
 # ------------------------------------------------------------------------------------------------ vector env
@@ -290,7 +310,8 @@ def test_bundle_loads_in_a_python_with_mujoco_and_not_vswrist_gym(tmp_path):
             "m = mujoco.MjModel.from_xml_path('wrist.xml'); d = mujoco.MjData(m)\n"
             "mujoco.mj_resetDataKeyframe(m, d, m.key('home_stiff').id)\n"
             "q0 = d.qpos.copy(); mujoco.mj_step(m, d, 200)\n"
-            "print('plugins', m.nplugin, 'drift', float(abs(d.qpos - q0).max()), 'force', float(abs(d.qfrc_passive).max()))\n")
+            "print('plugins', m.nplugin, 'drift', float(abs(d.qpos - q0).max()),\n"
+            "      'force', float(abs(d.qfrc_passive).max()))\n")
     # -S: no site-packages (and no .pth files: not the editable install either); -E: no PYTHON* variables
     res = subprocess.run([sys.executable, "-S", "-E", "-c", code], capture_output=True, text=True, cwd=bundle,
                          timeout=120)

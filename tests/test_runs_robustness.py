@@ -134,7 +134,7 @@ def test_read_only_out_is_refused_before_anything_is_built(tmp_path, monkeypatch
     def built(*_a, **_k):
         raise AssertionError("an environment was built before --out was checked")
 
-    monkeypatch.setattr(runs.tempfile, "mkstemp", read_only)
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)
     monkeypatch.setattr(train_mod, "make_vec_env", built)
     monkeypatch.setattr(train_mod, "check_env_kwargs", built)
     with pytest.raises(runs.RunDirError, match="not writable.*[Rr]ead-only"):

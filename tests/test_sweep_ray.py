@@ -8,6 +8,7 @@ the [sweep] extra; not in the default suite (several minutes):
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -276,3 +277,78 @@ def test_search_driver_killed_resume_reruns_no_finished_sample_and_writes_the_be
     written = best.read_text()
     top_level = [line for line in written.splitlines() if line.startswith("VSWrist/")]
     assert top_level == ["VSWrist/LoadHold-v0:"] and written.count("(mode: search)") == 1, written
+
+
+# ------------------------------------------------------------------------------------ a cluster of `ray start`
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def ray_start_cluster(tmp_path):
+    """A head and a worker node started with `ray start` as docs/training.md shows (token authentication, the
+    token in ~/.ray/auth_token), in a home of the test's own. `--block` keeps each node's processes under one
+    process group of ours, which the teardown ends (never `ray stop`: it stops every Ray on the machine)."""
+    ray_cli = str(Path(sys.executable).parent / "ray")
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {**ENV, "HOME": str(home)}
+    env.pop("RAY_AUTH_MODE", None)
+    subprocess.run([ray_cli, "get-auth-token", "--generate"], env=env, check=True, capture_output=True, timeout=120)
+    assert (home / ".ray" / "auth_token").is_file()
+    port = _free_port()
+    node_env = {**env, "RAY_AUTH_MODE": "token"}
+    procs = []
+
+    def start(*args, log: Path) -> None:
+        fh = open(log, "w")
+        procs.append(subprocess.Popen([ray_cli, "start", "--block", "--num-cpus", "2", "--node-ip-address",
+                                       "127.0.0.1", *args], stdout=fh, stderr=subprocess.STDOUT, env=node_env,
+                                      start_new_session=True))
+        wait_for(lambda: "Ray runtime started" in log.read_text() or procs[-1].poll() is not None, 180,
+                 f"ray start {' '.join(args)}")
+        assert procs[-1].poll() is None, log.read_text()[-2000:]
+
+    try:
+        start("--head", "--port", str(port), "--include-dashboard", "false", log=tmp_path / "head.log")
+        start("--address", f"127.0.0.1:{port}", log=tmp_path / "worker.log")
+        yield f"127.0.0.1:{port}", env
+    finally:
+        for proc in reversed(procs):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+
+def test_sweep_joins_a_ray_start_cluster_with_token_authentication(ray_start_cluster, tmp_path):
+    """Ray (2.52 on) turns token authentication on in `ray start` when a token exists; a driver given an explicit
+    address does not. `vswrist sweep --address` uses the token it finds and runs on both nodes; a driver without
+    a token fails with one line and leaves no sweep folder behind (the rerun needs no --resume)."""
+    address, env = ray_start_cluster
+    path = write_sweep(tmp_path, seeds=[0, 1])
+    no_token = {**env, "HOME": str(tmp_path / "elsewhere")}
+    (tmp_path / "elsewhere").mkdir()
+    res = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "sweep", str(path), "--address", address],
+                         capture_output=True, text=True, env=no_token, cwd=tmp_path, timeout=600)
+    assert res.returncode == 2, res.stdout + res.stderr
+    lines = [x for x in res.stderr.strip().splitlines() if x.startswith("vswrist sweep")]
+    assert len(lines) == 1 and "cannot join the Ray cluster" in lines[0] and "token" in lines[0], res.stderr[-2000:]
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "out").exists()
+    log = tmp_path / "sweep.log"
+    fh = open(log, "w")
+    proc = subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", "sweep", str(path), "--address", address],
+                            stdout=fh, stderr=subprocess.STDOUT, env=env, cwd=tmp_path)
+    text = finish(proc, log)
+    assert "2 node(s)" in text and "3/3 trials done" in text
+    nodes = {json.loads((Path(t["trial_dir"]) / "result.json").read_text())["node"] for t in trials_of(path)}
+    assert len(nodes) == 2, "the trials ran on both nodes"

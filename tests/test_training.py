@@ -303,7 +303,9 @@ def test_interrupted_checkpoint_never_becomes_latest(tmp_path, monkeypatch):
     def broken(_model):
         raise OSError("disk full (simulated)")
 
-    monkeypatch.setattr(runs, "model_bytes", broken)
+    from vswrist_gym.agents import checkpoints
+
+    monkeypatch.setattr(checkpoints, "model_bytes", broken)
     with pytest.raises(OSError):
         runs.save_checkpoint(tmp_path, model, None)
     assert runs.latest_checkpoint(tmp_path) == first

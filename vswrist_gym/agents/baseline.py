@@ -3,7 +3,7 @@
 A trained agent's return means little alone: the question the benchmark asks is whether it beats the analytic
 agent at the best fixed stiffness command. `best_constant` evaluates the analytic agent at each of the levels
 `vswrist compare` uses (DEFAULT_STIFFNESS_LEVELS) on exactly the episodes the agent met (same reset seeds, same
-env settings), picks the level with the highest mean return, and `paired_difference` gives the agent's return
+task settings; the analytic agent acts through its own action mode), picks the level with the highest mean return, and `paired_difference` gives the agent's return
 minus the baseline's, episode by episode, with its Student-t interval. The best level is picked on these same
 episodes, which favours the baseline slightly: a difference above zero is a conservative verdict for the agent.
 The analytic agent has no network, and a seed's episodes run as the worlds of one batch, so this costs about
@@ -19,6 +19,19 @@ import numpy as np
 DEFAULT_STIFFNESS_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)  # vswrist compare's fixed-stiffness levels
 
 
+ACTION_KEYS = ("action_mode", "residual")  # how an agent's actions map to commands: the agent's, not the task's
+
+
+def task_env_kwargs(env_kwargs: dict | None) -> dict:
+    """A trained agent's env_kwargs without its action interface (action mode, residual scales): the analytic
+    agent commands the task through its own posture-and-stiffness mode on the same task and episodes, as
+    `vswrist compare` and the shipped policies' cards run it."""
+    kwargs = {k: v for k, v in (env_kwargs or {}).items() if k not in ACTION_KEYS}
+    if isinstance(kwargs.get("config"), dict):
+        kwargs["config"] = {k: v for k, v in kwargs["config"].items() if k not in ACTION_KEYS}
+    return kwargs
+
+
 def _analytic(stiffness: float):
     from vswrist_gym.agents.analytic import AnalyticAgent
 
@@ -28,13 +41,14 @@ def _analytic(stiffness: float):
 def best_constant(env_id: str, seeds, episodes: int, env_kwargs: dict | None = None,
                   levels=DEFAULT_STIFFNESS_LEVELS) -> dict | None:
     """{'label', 'stiffness', 'records', 'returns'} of the fixed stiffness with the highest mean return on the
-    protocol's episodes of `seeds`; None when the task cannot run the analytic agent (no posture reference)."""
+    protocol's episodes of `seeds` (`env_kwargs`: the agent's, see task_env_kwargs); None when the task cannot run
+    the analytic agent (no posture reference)."""
     from vswrist_gym.agents.protocol import evaluate
 
     best = None
     for k in levels:
         try:
-            records, _ = evaluate(env_id, _analytic(k), seeds, episodes, env_kwargs=env_kwargs)
+            records, _ = evaluate(env_id, _analytic(k), seeds, episodes, env_kwargs=task_env_kwargs(env_kwargs))
         except ValueError:  # the observation has no 'target' term: no analytic agent on this task
             return None
         mean = float(np.mean([r["return"] for r in records]))
@@ -52,7 +66,7 @@ def best_constant_episode(env_id: str, seed: int, env_kwargs: dict | None = None
     from vswrist_gym.agents.protocol import run_episode
 
     best = None
-    env = gym.make(env_id, **(env_kwargs or {}))
+    env = gym.make(env_id, **task_env_kwargs(env_kwargs))
     try:
         for k in levels:
             try:

@@ -25,9 +25,9 @@ from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, RunConfi
 from vswrist_gym.agents.runs import (VECNORM_FILE, RunDirError, atomic_write_bytes, check_env_id, check_env_kwargs,
                                      check_new_out, check_seed, check_writable, created_root, latest_checkpoint,
                                      limit_threads, load_newest_intact, make_vec_env, model_bytes, override,
-                                     process_alive, read_config, refuse_pickles, save_checkpoint, save_vecnormalize, steps_done,
-                                     this_process, update_run_json, versions, wrap_frame_stack, wrap_normalize,
-                                     write_config)
+                                     process_alive, read_config, refuse_pickles, save_checkpoint, save_vecnormalize,
+                                     steps_done, this_process, update_run_json, versions, wrap_frame_stack,
+                                     wrap_normalize, write_config)
 
 
 class TrainingError(RuntimeError):
