@@ -17,8 +17,8 @@ import sys
 from pathlib import Path
 
 from vswrist_gym.agents.hparams import ConfigError
-from vswrist_gym.agents.protocol import (METRICS, PARTIAL_FILE, TASK_METRICS, check_eval_seeds, evaluate, summarise,
-                                         write_metrics, write_partial)
+from vswrist_gym.agents.protocol import (METRICS, PARTIAL_FILE, RATE_METRICS, TASK_METRICS, check_eval_seeds,
+                                         evaluate, summarise, write_metrics, write_partial)
 from vswrist_gym.agents.runs import RunDirError, TrainedAgent, check_new_out, check_writable, versions
 
 # what an evaluation output folder holds: a folder with anything else is refused as --out
@@ -147,6 +147,8 @@ def format_summary(summary: dict) -> str:
         if name in TASK_METRICS and s["mean"] != s["mean"]:
             continue  # a task metric this task does not report
         ci = "n/a" if s["low"] != s["low"] else f"[{s['low']:.4g}, {s['high']:.4g}]"
+        if name in RATE_METRICS and ci != "n/a":
+            ci += f" (Wilson, over {s['n']} episodes)"
         lines.append(f"{name:<20} {METRICS[name][0]:<6} {s['mean']:>11.4g}  {ci}")
     return "\n".join(lines)
 
