@@ -3,11 +3,11 @@
 A trained agent's return means little alone: the question the benchmark asks is whether it beats the analytic
 agent at the best fixed stiffness command. `best_constant` evaluates the analytic agent at each of the levels
 `vswrist compare` uses (DEFAULT_STIFFNESS_LEVELS) on exactly the episodes the agent met (same reset seeds, same
-task settings; the analytic agent acts through its own action mode), picks the level with the highest mean return, and `paired_difference` gives the agent's return
-minus the baseline's, episode by episode, with its Student-t interval. The best level is picked on these same
-episodes, which favours the baseline slightly: a difference above zero is a conservative verdict for the agent.
-The analytic agent has no network, and a seed's episodes run as the worlds of one batch, so this costs about
-five analytic evaluations (seconds for the default 5 x 5 episodes).
+task settings; the analytic agent acts through its own action mode), picks the level with the highest mean
+return, and `paired_difference` gives the agent's return minus the baseline's, episode by episode, with its
+Student-t interval. The best level is picked on these same episodes, which favours the baseline slightly: a
+difference above zero is a conservative verdict for the agent. The analytic agent has no network, and a seed's
+episodes run as the worlds of one batch, so this costs five analytic evaluations.
 """
 
 from __future__ import annotations

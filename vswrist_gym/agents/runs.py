@@ -47,7 +47,8 @@ from vswrist_gym.agents.env_factory import (EnvFactory, check_env_id, check_env_
                                             make_vec_env, wrap_frame_stack, wrap_normalize)
 from vswrist_gym.agents.fileio import (RunDirError, atomic_write_bytes, atomic_write_npz, atomic_write_text,
                                        check_new_out, check_writable, created_root, folder_bytes)
-from vswrist_gym.agents.procs import _proc_start_ticks, limit_threads, process_alive, steps_done, this_process, versions
+from vswrist_gym.agents.procs import (_proc_start_ticks, limit_threads, process_alive,  # noqa: F401
+                                      steps_done, this_process, versions)
 from vswrist_gym.agents.run_config import (SEED_MAX, check_seed, override, read_config, update_run_json,
                                            write_config)
 from vswrist_gym.agents.run_stats import (REPLAY_ARRAYS, REPLAY_FILE, REPLAY_LEGACY_FILE, VECNORM_FILE,

@@ -193,18 +193,18 @@ class TrainedAgent:
     def _vswrist_files(self, checkpoint: str) -> tuple[Path, Path]:
         final_step, latest = final_model_step(self.run_dir), latest_checkpoint(self.run_dir)
         latest_step = checkpoint_step(latest)
-        newer = latest if latest is not None and (not (self.run_dir / "model.zip").exists() or (
-            latest_step is not None and (final_step is None or latest_step > final_step))) else None
+        # a run without model.zip never finished: "newest" then stays "final" and says how to evaluate its last
+        # checkpoint (--checkpoint latest), so that a cut-off run is not taken for a finished one
+        has_final = (self.run_dir / "model.zip").exists()
+        newer = latest if has_final and latest is not None and latest_step is not None and (
+            final_step is None or latest_step > final_step) else None
         if checkpoint == "newest":
-            if newer is None:
-                checkpoint = "final"
-            else:
-                checkpoint = "latest"
-                if (self.run_dir / "model.zip").exists():
-                    self.note = (f"{self.run_dir}: evaluating {newer.relative_to(self.run_dir)} (step {latest_step}), "
-                                 f"the newest model run.json accounts for; model.zip holds the older step "
-                                 f"{final_step if final_step is not None else 'unknown'} (--checkpoint final for it)")
-        elif checkpoint == "final" and newer is not None and (self.run_dir / "model.zip").exists():
+            checkpoint = "final" if newer is None else "latest"
+            if newer is not None:
+                self.note = (f"{self.run_dir}: evaluating {newer.relative_to(self.run_dir)} (step {latest_step}), "
+                             f"the newest model run.json accounts for; model.zip holds the older step "
+                             f"{final_step if final_step is not None else 'unknown'} (--checkpoint final for it)")
+        elif checkpoint == "final" and newer is not None:
             self.note = (f"{self.run_dir}: evaluating model.zip (step {final_step if final_step is not None else '?'})"
                          f" as asked; the run went on to step {latest_step} ({newer.relative_to(self.run_dir)})")
         if checkpoint == "final":
