@@ -106,7 +106,7 @@ def test_probe_headroom_json_feeds_aggregate(tmp_path, capsys):
 
 
 def test_a_task_folder_is_not_replaced_by_another_run_of_the_task(tmp_path):
-    """results/ holds <Task>/ folders and also main_job/ (another Polish run): only Polish/ counts as Polish."""
+    """A results folder holds <Task>/ folders and also main_job/ (another Polish run): only Polish/ counts as Polish."""
     base = [-100.0, -110.0]
     for name, gain in (("Polish", 10.0), ("main_job", 50.0)):
         (tmp_path / name).mkdir()

@@ -17,7 +17,13 @@ from vswrist_gym.agents import hparams
 from vswrist_gym.sweep.spec import SweepError, load_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
-SWEEPS = ROOT / "vswrist_gym" / "configs" / "sweeps"
+EXPERIMENTS = ROOT / "experiments"  # a study's sweep files are in experiments/<study>/
+
+
+def sweep_file(name: str) -> Path:
+    """The committed sweep file `name`.yaml, in whichever study's folder holds it."""
+    (found,) = EXPERIMENTS.glob(f"*/{name}.yaml")
+    return found
 
 # the CLI in a fresh interpreter in which `import ray` and `import optuna` fail, as on an installation without
 # the [sweep] extra
@@ -82,7 +88,7 @@ def _as_swept(sw, env_id: str) -> dict:
 
 
 @pytest.mark.parametrize("name,channel", [
-    ("results", None), ("long", None), ("long200", None), ("sac_drill", None), ("sac_long", None),
+    ("every_task", None), ("long", None), ("long200", None), ("sac_drill", None), ("sac_long", None),
     ("sac_insertion", None), ("sac_tuned", None),
     ("ablation_posture_only", "stiffness_scale"), ("ablation_stiffness_only", "posture_scale"),
     ("long_stiffness", "posture_scale"), ("hammer_stiffness", "posture_scale"),
@@ -96,7 +102,7 @@ def _as_swept(sw, env_id: str) -> dict:
 def test_committed_sweeps_describe_the_committed_tables(name, channel):
     """Each sweep file reruns the grid its committed tables came from: the tasks, seeds, episodes, stiffness
     levels and budgets recorded in OUT/<Task>/summary.json, and an ablation switches off exactly one channel."""
-    sw = load_sweep(SWEEPS / f"{name}.yaml")
+    sw = load_sweep(sweep_file(name))
     algo = sw.algos[0]
     # the channels are checked against the hyperparameter file the sweep trains from (a tuned file sets its own)
     base = hparams.load_file(ROOT / sw.configs[algo] if algo in sw.configs else hparams.default_config_path(algo))
@@ -108,8 +114,8 @@ def test_committed_sweeps_describe_the_committed_tables(name, channel):
 
 
 def test_every_committed_sweep_file_loads():
-    files = sorted(SWEEPS.glob("*.yaml"))
-    assert len(files) >= 3
+    files = sorted(f for f in EXPERIMENTS.glob("*/*.yaml") if "mode" in yaml.safe_load(f.read_text()))
+    assert len(files) >= 37  # the 37 sweep records the studies were run from
     for f in files:
         sw = load_sweep(f)
         assert sw.trials() or sw.mode == "search"
@@ -196,10 +202,10 @@ def _episode_keys(out: Path, env_id: str, agent: str = "ppo") -> set:
     ("contribution_polish_full", "contribution_polish_posture_only_s05", {"stiffness_nominal": 0.5}),
 ])
 def test_contribution_pairs_differ_only_in_the_stiffness_channel(full, ablation, held):
-    """A stiffness-contribution pair (results/README.md section 10) trains the same entry on the same seeds and
-    evaluates it on the same episodes; the ablation closes the stiffness channel (and may hold another constant),
-    the posture channel is open in both. Each file's committed summary records what the file runs."""
-    sws = [load_sweep(SWEEPS / f"{name}.yaml") for name in (full, ablation)]
+    """A stiffness-contribution pair (experiments/contribution_polish/NOTES.md) trains the same entry on the same
+    seeds and evaluates it on the same episodes; the ablation closes the stiffness channel (and may hold another
+    constant), the posture channel is open in both. Each file's committed summary records what the file runs."""
+    sws = [load_sweep(sweep_file(name)) for name in (full, ablation)]
     assert sws[0].env_ids == sws[1].env_ids and sws[0].seeds == sws[1].seeds
     assert sws[0].episodes == sws[1].episodes and sws[0].timesteps == sws[1].timesteps
     for sw in sws:

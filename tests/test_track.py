@@ -37,7 +37,7 @@ def _interval(x: np.ndarray) -> tuple[float, float, float]:
 
 def _seed_means(folder: Path, row: dict) -> dict[str, np.ndarray]:
     """Per agent folder name, the per-seed mean returns: from the episode files, or where a folder keeps only its
-    summary (results/main_job), from the summary's per-seed means."""
+    summary (experiments/main_job), from the summary's per-seed means."""
     if (folder / "eval").is_dir():
         names = [n.lower().replace("analytic:", "analytic_") for n in
                  json.loads((folder / "summary.json").read_text())["rows"]]  # the agents the table compares
@@ -96,23 +96,27 @@ def _write(tmp_path: Path, text: str) -> Path:
     return p
 
 
-SWEEPS = "vswrist_gym/configs/sweeps"
+def _sw(name: str) -> str:
+    """The committed sweep file `name`.yaml, as a path from the repository root (studies keep theirs in
+    experiments/<study>/)."""
+    (found,) = ROOT.glob(f"experiments/*/{name}.yaml")
+    return str(found.relative_to(ROOT))
 
 
 @pytest.mark.parametrize("text, message", [
     ("track: stiffness\nheadroom: h\nout: o\nruns: []\nextra: 1\n", "unknown key 'extra'"),
     ("track: both\nheadroom: h\nout: o\nruns: [{task: Drill}]\n", "'track' must be one of"),
     ("track: stiffness\nheadroom: h\nout: o\nruns: [{task: Drill, agent: ppo}]\n", "exactly one of 'sweep'"),
-    (f"track: stiffness\nheadroom: h\nout: o\nruns: [{{task: Hammer, agent: ppo, sweep: {SWEEPS}/long.yaml}}]\n",
+    (f"track: stiffness\nheadroom: h\nout: o\nruns: [{{task: Hammer, agent: ppo, sweep: {_sw('long')}}}]\n",
      "does not run Hammer"),
-    (f"track: stiffness\nheadroom: h\nout: o\nruns: [{{task: Drill, agent: sac, sweep: {SWEEPS}/long.yaml}}]\n",
+    (f"track: stiffness\nheadroom: h\nout: o\nruns: [{{task: Drill, agent: sac, sweep: {_sw('long')}}}]\n",
      "trains ppo, not sac"),
     (f"track: full\nheadroom: h\nout: o\nruns: [{{task: Drill, agent: ppo, "
-     f"sweep: {SWEEPS}/tuned_stiffness.yaml}}]\n", "on the stiffness track, not the full track"),
-    (f"track: full\nheadroom: h\nout: o\nruns: [{{task: Drill, agent: ppo, sweep: {SWEEPS}/results.yaml, "
-     f"ablation: {SWEEPS}/long.yaml}}]\n", "residual.stiffness_scale 0"),
-    (f"track: full\nheadroom: h\nout: o\nruns: [{{task: Drill, agent: ppo, sweep: {SWEEPS}/results.yaml, "
-     f"ablation: {SWEEPS}/search_sac.yaml}}]\n", "not a grid"),
+     f"sweep: {_sw('tuned_stiffness')}}}]\n", "on the stiffness track, not the full track"),
+    (f"track: full\nheadroom: h\nout: o\nruns: [{{task: Drill, agent: ppo, sweep: {_sw('every_task')}, "
+     f"ablation: {_sw('long')}}}]\n", "residual.stiffness_scale 0"),
+    (f"track: full\nheadroom: h\nout: o\nruns: [{{task: Drill, agent: ppo, sweep: {_sw('every_task')}, "
+     f"ablation: {_sw('search_sac')}}}]\n", "not a grid"),
     ("track: full\nheadroom: h\nout: o\nruns: [{task: Nope, agent: ppo, sweep: x.yaml}]\n", "runs[0].task"),
 ])
 def test_bad_track_files_name_the_field(tmp_path, text, message):
@@ -123,8 +127,8 @@ def test_bad_track_files_name_the_field(tmp_path, text, message):
 
 def test_missing_results_name_the_command_and_run_lists_it(tmp_path, capsys):
     sweep = tmp_path / "s.yaml"
-    sweep.write_text((ROOT / SWEEPS / "hammer_stiffness.yaml").read_text()
-                     .replace("out: results/hammer_stiffness", f"out: {tmp_path / 'out'}")
+    sweep.write_text((ROOT / _sw("hammer_stiffness")).read_text()
+                     .replace("out: experiments/hammer_stiffness", f"out: {tmp_path / 'out'}")
                      .replace("runs_dir: runs/results/hammer_stiffness", f"runs_dir: {tmp_path / 'runs'}"))
     f = _write(tmp_path, f"track: stiffness\nheadroom: docs/figures/headroom.json\nout: {tmp_path / 'o.md'}\n"
                          f"runs: [{{task: Hammer, agent: ppo, sweep: {sweep}}}]\n")

@@ -38,22 +38,20 @@ def _registered_vswrist() -> list[str]:
 # ------------------------------------------------------------------------------------------- hyperparameter files
 
 
-# the packaged files besides configs/<algo>.yaml whose entries are run for committed tables
-EXTRA_FILES = {"sac": ["sac_tuned.yaml", "sac_stiffness.yaml", "sac_hammer_tuned.yaml"],
-               "ppo": ["ppo_stiffness_tuned.yaml", "ppo_hammer_tuned.yaml", "ppo_insertion_tuned.yaml",
-                       "ppo_impact_stiffness_symmetric.yaml"],
-               "ppo_lstm": ["ppo_lstm_stiffness.yaml"]}
+# besides the packaged configs/<algo>.yaml, the studies' own algorithm files (experiments/<study>/<algo>.yaml),
+# whose entries were run for committed tables
+EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
 
 
 def _files(algo: str) -> list[Path]:
-    return [hparams.default_config_path(algo), *(hparams.CONFIG_DIR / f for f in EXTRA_FILES.get(algo, []))]
+    return [hparams.default_config_path(algo), *sorted(EXPERIMENTS.glob(f"*/{algo}.yaml"))]
 
 
 def _entries():
     for algo in hparams.ALGO_NAMES:
         for path in _files(algo):
             for env_id in hparams.load_file(path):
-                yield pytest.param(algo, env_id, path, id=f"{algo}-{path.stem}-{env_id}")
+                yield pytest.param(algo, env_id, path, id=f"{algo}-{path.parent.name}-{env_id}")
 
 
 def _same(actual, expected) -> bool:

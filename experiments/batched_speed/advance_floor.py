@@ -2,7 +2,7 @@
 Python at all, for each sync the advance can end a period with (none; poses and velocities only, as LoadHold's;
 a full ``mj_forward`` with the sensors, as every task that reads a touch or force/torque sensor):
 
-    python results/advance_floor.py [--worlds 32] [--periods 60] [--repeats 3]
+    python experiments/batched_speed/advance_floor.py [--worlds 32] [--periods 60] [--repeats 3]
 
 One thread pinned to CPU 1; per task, ``repeats`` x each sync, ``periods`` control periods of ``worlds`` worlds
 at their reset state (fixed motor references), CPU time of the calls over the CPU time inside their substeps

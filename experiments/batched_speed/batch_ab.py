@@ -1,7 +1,7 @@
 """A batch's step time on this code against another checkout, in alternating processes (the VM's drift between
 runs falls on both alike).
 
-    python results/batch_ab.py --old PATH [--tasks LoadHold Polish Hammer] [--pairs 5] [--worlds 32] [--steps 200]
+    python experiments/batched_speed/batch_ab.py --old PATH [--tasks LoadHold Polish Hammer] [--pairs 5] [--worlds 32] [--steps 200]
 
 ``PATH``: a checkout of the other code (e.g. ``git worktree add /tmp/old 2535bdc``), put first on PYTHONPATH
 of its processes. Each process builds a batch of ``--worlds`` worlds of the task, steps it 30 times to warm

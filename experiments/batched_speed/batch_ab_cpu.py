@@ -1,7 +1,7 @@
 """A batch's one-thread CPU time and its ratio to the physics, on this code against another checkout, in
 alternating processes (the VM's drift falls on both alike).
 
-    python results/batch_ab_cpu.py OLD_CHECKOUT TASK [TASK ...]
+    python experiments/batched_speed/batch_ab_cpu.py OLD_CHECKOUT TASK [TASK ...]
 
 Per task, five pairs of processes (old, new), each pinned to CPU 1: a batch of 32 worlds (one thread) steps 30
 times to warm up, then 300 steps of random actions from a fixed generator; printed are the median over the

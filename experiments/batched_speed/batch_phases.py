@@ -2,7 +2,7 @@
 ``VSWristVectorEnv`` (wall time), and the cost of the ``stiffness`` observation term over arrays against world by
 world (the reason for ``batch.SCALAR_STIFFNESS_BELOW``).
 
-    python results/batch_phases.py [--task Drill] [--threads 1 2] [--worlds 32] [--steps 300]
+    python experiments/batched_speed/batch_phases.py [--task Drill] [--threads 1 2] [--worlds 32] [--steps 300]
 
 Each setting runs in this process after 30 warm-up steps of random actions (NEXT_STEP autoresets). The phases
 nest (``_native_step`` holds ``_begin`` and ``_finish`` on the compiled path; ``_step_core`` holds everything), so

@@ -2,7 +2,7 @@
 ``mj_step`` substeps (``physics_seconds``, timed by the compiled advance), one thread pinned to CPU 1, after 30
 warm-up steps of random actions. What is left once the physics is paid, and which part grows with the worlds:
 
-    python results/batch_shares.py [--task Drill] [--worlds 32 128] [--steps 600]
+    python experiments/batched_speed/batch_shares.py [--task Drill] [--worlds 32 128] [--steps 600]
 
 ``advance`` is the compiled call (its share above 1 is its own work beside mj_step: motor references, the sync of
 poses and sensors, the checks); ``_settle`` is the resets' settling physics (bench-env counts it as physics);

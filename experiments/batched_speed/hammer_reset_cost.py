@@ -1,7 +1,7 @@
 """Where Hammer's single-env time goes: its steps against its resets, and inside a reset the swing reference
 (``envs.hammer.ramp_reference``, integrated at 1 ms with two evaluations of the legs' rate per point).
 
-``python results/hammer_reset_cost.py [--steps 1200]``: random actions from a fixed generator, default config
+``python experiments/batched_speed/hammer_reset_cost.py [--steps 1200]``: random actions from a fixed generator, default config
 (60-step episodes), CPU time of this process; run it under ``flock /work/bench.lock`` on a shared machine.
 """
 

@@ -1,7 +1,7 @@
 """Microseconds of the small per-step and per-reset pieces a change of this kind touches, on the code
 PYTHONPATH imports, so that two checkouts can be compared:
 
-    cd /tmp && PYTHONPATH=<checkout> python <repo>/results/hook_costs.py
+    cd /tmp && PYTHONPATH=<checkout> python <repo>/experiments/batched_speed/hook_costs.py
 
 Printed (median of 5 timeit runs each, one thread pinned to CPU 1): the analytic controller's step
 (``AnalyticController.step`` with a commanded lam); the load hook of one Drill world while it drills and of one

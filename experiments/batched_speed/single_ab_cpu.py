@@ -1,7 +1,7 @@
 """The single env's step CPU time (``gym.make``), this code against another checkout, in alternating processes
 (issue 14's N = 1 target: at most 1.1x the step time of the code before the batch, measured side by side).
 
-    cd /tmp && python /path/to/results/single_ab_cpu.py OLD_CHECKOUT [TASK ...] [--pairs 5]
+    cd /tmp && python /path/to/experiments/batched_speed/single_ab_cpu.py OLD_CHECKOUT [TASK ...] [--pairs 5]
 
 Per task (default: the five tasks both checkouts register, at -v0), ``--pairs`` pairs of processes (old, new), each
 pinned to CPU 1: ``gym.make(id)`` with its default action mode, 200 warm-up steps, then 2,000 steps of random

@@ -1,8 +1,8 @@
 """Old against new Polish and Hammer episodes: record them with one code tree, compare two recordings.
 
-    PYTHONPATH=<old tree> python results/contact_meter_equivalence.py record old.npz
-    PYTHONPATH=<new tree> python results/contact_meter_equivalence.py record new.npz
-    python results/contact_meter_equivalence.py compare old.npz new.npz
+    PYTHONPATH=<old tree> python experiments/contact_meter_equivalence/contact_meter_equivalence.py record old.npz
+    PYTHONPATH=<new tree> python experiments/contact_meter_equivalence/contact_meter_equivalence.py record new.npz
+    python experiments/contact_meter_equivalence/contact_meter_equivalence.py compare old.npz new.npz
 
 The protocol is ``tests/reference/record.py``'s (random actions from a fixed generator and the analytic baseline,
 short episodes with resets, a divergence forced before step 47) for seeds 3, 11, 21, 42, latency randomisation on

@@ -2,8 +2,8 @@
 while the drill engages (contact force above 0) and while it does not; the stiffest constant on the same episodes
 beside it. Reset seeds of seed s are 1,000,000 + 1,000 s + i, as in its metrics.csv.
 
-    python results/sac_stiffness/replay.py runs/results/sac_stiffness/Drill/sac_seed1 1 10
-    python results/sac_stiffness/replay.py runs/results/sac_stiffness/Drill/sac_seed1 1 2 trace
+    python experiments/sac_stiffness/replay.py runs/results/sac_stiffness/Drill/sac_seed1 1 10
+    python experiments/sac_stiffness/replay.py runs/results/sac_stiffness/Drill/sac_seed1 1 2 trace
         (trace: also every 6th step of each SAC episode: time, contact force, internal torque, posture error,
          reward)
 """

@@ -1,7 +1,7 @@
-"""What SAC does with the stiffness on Drill's stiffness track (results/README.md section 11), from the committed
-per-episode metrics and the trace of `vswrist sweep vswrist_gym/configs/sweeps/sac_stiffness.yaml`:
+"""What SAC does with the stiffness on Drill's stiffness track (experiments/sac_stiffness/NOTES.md), from the committed
+per-episode metrics and the trace of `vswrist sweep experiments/sac_stiffness/sac_stiffness.yaml`:
 
-    python3 results/sac_stiffness/what_it_does.py [results/sac_stiffness/Drill]
+    python3 experiments/sac_stiffness/what_it_does.py [experiments/sac_stiffness/Drill]
 
 Per seed: the paired difference in return to the stiffest constant (analytic +1.00, Drill's best fixed command) on
 the same 200 episodes, and the means of the stiffness used, the elastic (preload) energy, the RMS posture error and
@@ -15,7 +15,7 @@ import statistics as st
 import sys
 from pathlib import Path
 
-d = Path(sys.argv[1] if len(sys.argv) > 1 else "results/sac_stiffness/Drill")
+d = Path(sys.argv[1] if len(sys.argv) > 1 else "experiments/sac_stiffness/Drill")
 
 
 def per_seed(agent_dir: str) -> dict[int, list[dict]]:

@@ -1,6 +1,6 @@
 """How many evaluation episodes the issue's "non-overlapping 95 % intervals" verdict needs, per task.
 
-    python results/separability.py [--seeds 5] [--json PATH]
+    python experiments/separability/separability.py [--seeds 5] [--json PATH]
 
 The results protocol evaluates seed s on its own episodes (reset seeds 1,000,000 + 1000 s + i), so even a
 deterministic agent's per-seed mean return varies from seed to seed with the episodes drawn: by sd / sqrt(M)

@@ -1,7 +1,7 @@
 """How PPO's training time splits between collecting rollouts and the update, on LoadHold with the packaged entry
 (its worlds in one process, its rollout, epochs and minibatches; one torch thread):
 
-    python results/ppo_update_share.py [--timesteps 16384] [--torch-threads 1] [--set KEY=VALUE ...]
+    python experiments/training_speed/ppo_update_share.py [--timesteps 16384] [--torch-threads 1] [--set KEY=VALUE ...]
 
 ``--set`` changes entry keys (``--set n_envs=16 n_steps=64 batch_size=128`` is the entry before
 2026-12-04), so that the update's cost per minibatch can be read off side by side.

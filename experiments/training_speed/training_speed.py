@@ -1,7 +1,7 @@
 """Training speed and returns at equal env steps: the pre-batch default (a process per env) against the default.
 
-    python results/training_speed.py [--task LoadHold] [--algo ppo] [--timesteps 80000] [--seeds 0 1 2]
-                                     [--out results/training_speed] [--worlds N]
+    python experiments/training_speed/training_speed.py [--task LoadHold] [--algo ppo] [--timesteps 80000] [--seeds 0 1 2]
+                                     [--out experiments/training_speed] [--worlds N]
                                      [--variant LABEL KEY=VALUE [KEY=VALUE ...]] ...
 
 Trains, with the packaged hyperparameters of ``--algo`` for the task, one run per setting and seed through the

@@ -1,8 +1,8 @@
 """Did frame stacking help? The tuned PPO entry against the same entry with the other `frame_stack`, per task, on
-the same evaluation episodes (results/README.md section 9).
+the same evaluation episodes (experiments/tuned_stiffness/NOTES.md).
 
-    python results/frame_stack_effect.py vswrist_gym/configs/sweeps/tuned_stiffness.yaml \
-        vswrist_gym/configs/sweeps/tuned_stiffness_fs1.yaml
+    python experiments/tuned_stiffness/frame_stack_effect.py experiments/tuned_stiffness/tuned_stiffness.yaml \
+        experiments/tuned_stiffness_fs1/tuned_stiffness_fs1.yaml
 
 Both are `vswrist sweep` grid files with the same seeds and episodes whose PPO entries differ only in
 `frame_stack`; their outputs (`out:`) are compared task by task. Episodes are paired by (training seed, reset

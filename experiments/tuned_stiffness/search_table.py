@@ -1,9 +1,9 @@
 """A search's samples in one table per task, from the records that `vswrist sweep` wrote in search mode (copied
-to FOLDER/<Task>.json): results/README.md section 9 (`search_ppo_stiffness.yaml`, records in
-results/tuned_stiffness/search), section 7b (`search_ppo_hammer.yaml`, in results/hammer_stiffness_tuned/search)
-and section 5d (`search_sac_hammer.yaml`, SAC, in results/sac_hammer_searched/search):
+to FOLDER/<Task>.json): experiments/tuned_stiffness/NOTES.md (`search_ppo_stiffness.yaml`, records in
+experiments/tuned_stiffness/search), section 7b (`search_ppo_hammer.yaml`, in experiments/hammer_stiffness_tuned/search)
+and section 5d (`search_sac_hammer.yaml`, SAC, in experiments/sac_hammer_searched/search):
 
-    python results/search_table.py [results/tuned_stiffness/search]
+    python experiments/tuned_stiffness/search_table.py [experiments/tuned_stiffness/search]
 
 Every sample with the steps it reached before ASHA stopped it and its last periodic-evaluation return (10
 episodes, training seed 100); the best sample at the full budget is the entry the search wrote.
@@ -18,7 +18,7 @@ from pathlib import Path
 
 
 def main(argv=None) -> int:
-    folder = Path((argv or sys.argv[1:] or ["results/tuned_stiffness/search"])[0])
+    folder = Path((argv or sys.argv[1:] or ["experiments/tuned_stiffness/search"])[0])
     for path in sorted(folder.glob("*.json")):
         doc = json.loads(path.read_text())
         trials = sorted(doc["trials"].values(), key=lambda t: -t["eval_return"])

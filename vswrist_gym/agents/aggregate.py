@@ -13,8 +13,9 @@ evaluation episodes, so the difference is paired), 1 is the headroom table's bes
 where `headroom` is the paired difference in return of the task's best hand-written rule or optimised schedule
 over the best constant (the probe's headroom table). A score above 1 beats the best schedule found by hand.
 
-    vswrist aggregate --run PPO=results:PPO --run SAC=results/sac:SAC --headroom docs/figures/headroom.json \
-        --out results/aggregate
+    vswrist aggregate --run PPO=DIR:PPO --run SAC=DIR2:SAC --headroom docs/figures/headroom.json --out OUT
+
+where DIR and DIR2 are `vswrist compare --out` (or `vswrist sweep` grid) output folders.
 """
 
 from __future__ import annotations
@@ -82,7 +83,7 @@ def load_summaries(result_dir: str | Path) -> dict[str, dict]:
         if "task" not in s or "rows" not in s:
             raise AggregateError(f"{f}: not a compare summary (needs 'task' and 'rows')")
         # in a folder of task folders only <Task>/summary.json counts: another run of the same task beside them
-        # (results/main_job) must not replace it
+        # (a folder such as main_job/ of a second Polish run) must not replace it
         if single or f.parent.name == _short(s["task"]):
             out[_short(s["task"])] = s
     return out
@@ -200,9 +201,9 @@ def _parse_run(text: str) -> tuple[str, Path, str]:
         label, rest = text.split("=", 1)
         directory, agent = rest.rsplit(":", 1)
     except ValueError:
-        raise AggregateError(f"--run {text!r}: expected LABEL=RESULTS_DIR:AGENT, e.g. PPO=results:PPO") from None
+        raise AggregateError(f"--run {text!r}: expected LABEL=RESULTS_DIR:AGENT, e.g. PPO=runs/compare:PPO") from None
     if not label or not directory or not agent:
-        raise AggregateError(f"--run {text!r}: expected LABEL=RESULTS_DIR:AGENT, e.g. PPO=results:PPO")
+        raise AggregateError(f"--run {text!r}: expected LABEL=RESULTS_DIR:AGENT, e.g. PPO=runs/compare:PPO")
     return label, Path(directory), agent
 
 

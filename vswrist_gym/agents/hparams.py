@@ -34,6 +34,11 @@ ALGO_NAMES = ("ppo", "sac", "ppo_lstm")
 # named as RL Zoo names it: PPO with an LSTM, for tasks whose best action depends on what happened earlier
 POLICIES = {"ppo": "MlpPolicy", "sac": "MlpPolicy", "ppo_lstm": "MlpLstmPolicy"}
 RUN_SECTION = "vswrist"  # the top-level section of run settings that RL Zoo has no key for
+# said when a hyperparameter file is missing: what the package ships, and where the studies' own files are (a
+# study's tuned entries and sweeps are the repository's lab notebook, not package data)
+WHERE_FILES_ARE = (f"the package ships {', '.join(f'{a}.yaml' for a in ALGO_NAMES)} in {CONFIG_DIR} "
+                   "(the default of --config); a study's own hyperparameter and sweep files are in the repository's "
+                   "experiments/<study>/, listed in experiments/README.md")
 
 # Keys of an RL Zoo entry that configure the run rather than the algorithm, with their meaning.
 ZOO_RUN_KEYS = {
@@ -158,7 +163,7 @@ def read_file(path: str | Path) -> tuple[dict, dict]:
     run settings are its `vswrist:` section (environment id -> mapping of SECTION_KEYS), empty when absent."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"hyperparameter file not found: {path}")
+        raise ConfigError(f"hyperparameter file not found: {path} ({WHERE_FILES_ARE})")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

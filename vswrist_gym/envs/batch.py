@@ -70,8 +70,8 @@ from .shared import PeriodMeanForce
 ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
 # below this many worlds, ``_finish`` computes the ``stiffness`` observation term world by world: the array
 # kinematics (``AnalyticController.posture_kinematics_batch``) cost about 100 us per call whatever the count,
-# the single env's term about 9 us per world (``python results/batch_phases.py`` prints both; 94-111 and 9.2 us on
-# the dev machine, 2026-12-03)
+# the single env's term about 9 us per world (``python experiments/batched_speed/batch_phases.py`` prints both;
+# 94-111 and 9.2 us on the dev machine, 2026-12-03)
 SCALAR_STIFFNESS_BELOW = 12
 # chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
 # MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and shorten the last chunk, whose

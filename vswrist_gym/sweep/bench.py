@@ -11,7 +11,7 @@ The default 32,768 steps is 40 % of LoadHold's packaged budget
 
 Serial references (both run the same trial work as a sweep trial: one torch thread, the default of `vswrist train`,
 and one physics thread, since a batch of one world has one; the same config, seeds and evaluation):
-- `cli`, the reference a user has: the loop they would write without a sweep (as results/run.sh did), for each
+- `cli`, the reference a user has: the loop they would write without a sweep (a shell loop of commands), for each
   seed `vswrist train --task LoadHold --algo ppo --seed S --timesteps STEPS --n-envs 1` then `vswrist evaluate
   --agent RUN --seeds S --episodes EPISODES`, one command after another, default settings. Each command starts
   a Python process and imports torch, Stable-Baselines3 and MuJoCo (seconds); a sweep pays that once per worker.

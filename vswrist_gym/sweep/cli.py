@@ -3,7 +3,7 @@
 A grid trains and evaluates every task x algo x seed (and evaluates the analytic baselines) as Ray Tune trials,
 then writes per task the table, summary and plots `vswrist compare` writes. A search (`mode: search`) tunes
 hyperparameters on the training seeds and writes the best entry to a hyperparameter file. The sweep file format
-is described in `vswrist_gym.sweep.spec`; the committed sweeps are in vswrist_gym/configs/sweeps/.
+is described in `vswrist_gym.sweep.spec`; the committed sweeps are in experiments/.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ RECORD_FILE = "sweep.json"  # in runs_dir: the sweep file's content, to refuse m
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vswrist sweep", description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("sweep", metavar="SWEEP.yaml", help="sweep file (e.g. vswrist_gym/configs/sweeps/results.yaml)")
+    p.add_argument("sweep", metavar="SWEEP.yaml", help="sweep file (e.g. experiments/every_task/every_task.yaml)")
     p.add_argument("--address", help="join this Ray cluster (e.g. 10.0.0.5:6379, or 'auto'); default: start Ray "
                                      "on this machine with its CPUs")
     p.add_argument("--resume", action="store_true",

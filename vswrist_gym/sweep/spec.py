@@ -206,6 +206,9 @@ class Sweep:
 def load_sweep(path: str | Path) -> Sweep:
     """Read and check a sweep file; every error is one line naming the key (SweepError)."""
     path = Path(path)
+    if not path.is_file():
+        raise SweepError(f"sweep file {path}: file not found (sweep files are not package data: the studies' sweep "
+                         f"files are in the repository's experiments/<study>/, listed in experiments/README.md)")
     try:
         return _load(path)
     except SweepError as exc:

@@ -485,7 +485,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _batched(args, results: dict, cpu) -> None:
-    """The batched core's figures and the targets table (issue 14)."""
+    """The batched core's figures and the table of its speed targets."""
     n, rows = args.batch, []
     results["batch"] = {"n": n, "tasks": [], "single": []}
     tasks = args.tasks if n else []
@@ -541,7 +541,7 @@ def _batched(args, results: dict, cpu) -> None:
     if mem is not None:
         results["batch"]["memory"] = mem
     ant = results.get("ant") or {}
-    print("\ntargets (issue 14)")
+    print("\ntargets")
     print(f"{'target':<52}{'measured':>12}{'goal':>10}{'met':>5}")
     table = []
     if rows:
@@ -563,7 +563,7 @@ def _batched(args, results: dict, cpu) -> None:
         print(f"{label:<52}{value:>12}{goal:>10}{'-' if ok is None else ('yes' if ok else 'NO'):>5}")
     print("single env step / pre-batch single env step: measured with the pre-batch step kept in this tool up to "
           "commit 8cc08a1 (README, Batched speed)")
-    print("training speed: python results/training_speed.py (a separate command: it trains)")
+    print("training speed: python experiments/training_speed/training_speed.py (a separate command: it trains)")
     results["batch"]["targets"] = [{"target": t[0], "measured": t[1], "goal": t[2], "met": t[3]} for t in table]
 
 

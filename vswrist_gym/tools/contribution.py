@@ -1,7 +1,7 @@
 """The stiffness contribution per task: the full track's return minus the posture-only ablation's, on the same
-evaluation episodes (issue 15: what the learned stiffness adds to a policy that also trims the posture).
+evaluation episodes: what the learned stiffness adds to a policy that also trims the posture.
 
-    python -m vswrist_gym.tools.contribution [--full results] [--posture-only results/ablation]
+    python -m vswrist_gym.tools.contribution --full DIR --posture-only DIR
                                              [--agent ppo] [--tasks Polish ...] [--json PATH]
 
 Both folders are `vswrist compare`/`vswrist sweep` outputs (``<DIR>/<Task>/eval/<agent>/metrics.json``), trained
@@ -75,9 +75,8 @@ def table(results: dict[str, dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m vswrist_gym.tools.contribution", description=__doc__.split("\n\n")[0])
-    p.add_argument("--full", default="results", help="compare/sweep output of the full track (default results)")
-    p.add_argument("--posture-only", default="results/ablation",
-                   help="the posture-only ablation's output (default results/ablation)")
+    p.add_argument("--full", required=True, help="compare/sweep output of the full track")
+    p.add_argument("--posture-only", required=True, help="the posture-only ablation's output")
     p.add_argument("--agent", default="ppo", help="the agent's folder under <Task>/eval (default ppo)")
     p.add_argument("--tasks", nargs="+", default=None, help="short task names (default: every task both hold)")
     p.add_argument("--json", default=None, help="also write the results as JSON")

@@ -1,5 +1,5 @@
 """Hammer: trained policies' strike speed against the optimised open-loop stiffness schedule and the best constant
-stiffness, on the same held-out episodes (issue 15's target: a learned schedule within 10 % of the optimised one).
+stiffness, on the same held-out episodes (the target: a learned schedule within 10 % of the optimised one).
 
     python -m vswrist_gym.tools.hammer_learned --agent pretrained:Hammer:stiffness [--agent RUN_DIR ...]
                                                [--episodes 12] [--seed0 1000] [--json PATH]

@@ -3,7 +3,7 @@ the stiffness command (nominal + scale x action, clipped to [-1, 1]) and FE post
 up to the strike, to see whether the policy schedules the stiffness (the probe's rule: -0.5 until the swing's
 start at 0.05 s, then +1).
 
-    python results/sac_hammer/search/replay.py runs/tune/A_post02_s100 10100,10101 [latest]   (latest: last checkpoint)
+    python experiments/sac_hammer/search/replay.py runs/tune/A_post02_s100 10100,10101 [latest]   (latest: last checkpoint)
 """
 
 import sys

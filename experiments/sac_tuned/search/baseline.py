@@ -1,7 +1,7 @@
 """The best constant (a zero residual action) on the episodes of a training run's periodic evaluation: reset seeds
 seed + 10,000 + i (vswrist_gym/agents/train.py, EVAL_SEED_OFFSET), the reference for the search's learning curves.
 
-    python results/sac_tuned/search/baseline.py --tasks Insertion-v0 Drill-v0 --seeds 100 101 --episodes 5
+    python experiments/sac_tuned/search/baseline.py --tasks Insertion-v0 Drill-v0 --seeds 100 101 --episodes 5
 """
 
 import argparse

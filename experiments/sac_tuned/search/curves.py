@@ -1,7 +1,7 @@
 """The search's learning curves, from the run directories' periodic evaluations (eval/evaluations.npz: 5
 episodes, deterministic policy, reset seeds seed + 10,000 + i, never the protocol's 1,000,000+).
 
-    python results/sac_tuned/search/curves.py runs/tune/*      (the runs of the commands in results/README.md)
+    python experiments/sac_tuned/search/curves.py runs/tune/*      (the runs of the commands in experiments/README.md)
 """
 
 import sys

@@ -1,7 +1,7 @@
 """Replay a search run's final policy (deterministic) on given reset seeds: return, mean and spread of each action
 component (RUD, FE, PS residual, stiffness residual) and the reward terms.
 
-    python results/sac_tuned/search/replay.py runs/tune/ins_C_sde_lr1e-4_s100 10100,10104
+    python experiments/sac_tuned/search/replay.py runs/tune/ins_C_sde_lr1e-4_s100 10100,10104
 """
 
 import sys

@@ -2,7 +2,7 @@
 felt and for ``IMPACT_SOFT_S`` after it, the command slewed at ``SLEW`` per second) against variants, on the
 probe's 12 held-out episodes (seeds 1000-1011), paired with the best constant (-1):
 
-    python results/impact_rule_variants.py
+    python experiments/impact_stiffness_symmetric/impact_rule_variants.py
 
 Variants: the hold after the last contact at 0.3 s (the rule), 0.1 s and 0.02 s (one control step: memoryless
 but for the slew), and without the slew (the command jumps; hold 0.02 s and 0.3 s)."""
