@@ -119,6 +119,15 @@ def test_every_committed_sweep_file_loads():
     for f in files:
         sw = load_sweep(f)
         assert sw.trials() or sw.mode == "search"
+        study = f.parent.relative_to(ROOT)
+        if sw.mode == "grid":  # a study's outputs are written into its own folder
+            assert sw.out == study or study in sw.out.parents, f"{f}: out {sw.out} is outside {study}"
+        for algo, path in sw.configs.items():  # tuned entries: a study's own <algo>.yaml, never package data
+            assert (ROOT / path).is_file() and Path(path).name == f"{algo}.yaml", f"{f}: configs.{algo} {path}"
+            assert Path(path).parts[0] == "experiments", f"{f}: configs.{algo} {path}"
+        best = sw.search.get("best_out")
+        if best is not None:
+            assert Path(best).parts[0] != "vswrist_gym", f"{f}: a search writes into the package: {best}"
 
 
 def test_a_recorded_trial_is_not_rerun(tmp_path):
