@@ -1,8 +1,13 @@
-"""The environment tables of ``docs/environments.md``, generated from the code and the YAML configs.
+"""The generated tables of the README and the docs, from the code, the YAML configs and committed outputs.
 
-``python -m vswrist_gym.tools.table --write docs/environments.md`` rewrites the blocks between
+``python -m vswrist_gym.tools.table --write PATH`` rewrites the blocks of PATH between
 ``<!-- BEGIN GENERATED: name -->`` and ``<!-- END GENERATED: name -->``; ``--check`` fails if they are stale
-(the test suite runs the same check), so the documented tables cannot drift from the code.
+(the test suite runs the same check), so the documented tables cannot drift from what produced them.
+
+Blocks: the environment tables (``env-table``, ``tasks``, ``obs-terms``, ``obs-indices``, ``randomisation``),
+the shipped policies' table (``pretrained``, from their model cards) and ``compare-table FOLDER``, the table and
+verdicts a ``vswrist compare`` run wrote to ``FOLDER/table.md`` (FOLDER relative to the document, so the
+document, not the package, names where its results live).
 """
 
 from __future__ import annotations
@@ -58,6 +63,33 @@ def env_table(envs) -> str:
     return "\n".join(rows)
 
 
+def task_table(envs) -> str:
+    """The newest version of every task, in one line each: the README's table."""
+    rows = ["| id | task | observation | control, episode |", "|---|---|---|---|"]
+    for e in _newest(envs):
+        rows.append(f"| `{e.task_id}` | {e.summary} | {e.obs_size} values | "
+                    f"{1 / e.ctrl_dt:g} Hz, {e.cfg['episode_s']:g} s |")
+    return "\n".join(rows)
+
+
+def pretrained_table(envs=None) -> str:
+    """The shipped policies against the best constant stiffness, from their model cards."""
+    from vswrist_gym.tools.ship_policies import cards_table
+
+    return cards_table()
+
+
+def compare_table(folder: Path) -> str:
+    """The table and verdict lines of a ``vswrist compare`` output, as that command wrote them."""
+    path = folder / "table.md"
+    if not path.is_file():
+        raise ValueError(f"compare-table: {path} not found (the folder of a `vswrist compare --out` run)")
+    lines = path.read_text().splitlines()
+    table = [line for line in lines if line.startswith("|")]
+    verdicts = [line for line in lines if line.startswith("- ")]
+    return "\n".join(table + [""] + verdicts)
+
+
 def obs_table(envs) -> str:
     envs = _newest(envs)
     used = {}
@@ -97,8 +129,10 @@ def randomisation_table(envs) -> str:
     return "\n".join(rows)
 
 
-BLOCKS = {"env-table": env_table, "obs-terms": obs_table, "obs-indices": index_table,
+BLOCKS = {"env-table": env_table, "tasks": task_table, "obs-terms": obs_table, "obs-indices": index_table,
           "randomisation": randomisation_table}
+COMPARE = re.compile(r"(<!-- BEGIN GENERATED: compare-table (\S+) -->\n)(?:.*?\n)?(<!-- END GENERATED: compare-table -->)",
+                     re.S)
 
 
 def render_blocks() -> dict[str, str]:
@@ -107,6 +141,17 @@ def render_blocks() -> dict[str, str]:
     for e in envs:
         e.close()
     return out
+
+
+def regenerate(path: Path) -> str:
+    """PATH's text with every generated block it holds rewritten. ``docs/environments.md`` must hold every
+    environment block; other documents hold the blocks they choose."""
+    text = path.read_text()
+    if any(f"<!-- BEGIN GENERATED: {name} -->" in text for name in BLOCKS):
+        text = update(text, render_blocks(), required=path.name == "environments.md")
+    if "<!-- BEGIN GENERATED: pretrained -->" in text:
+        text = update(text, {"pretrained": pretrained_table()})
+    return COMPARE.sub(lambda m: m.group(1) + compare_table(path.parent / m.group(2)) + "\n" + m.group(3), text)
 
 
 def update(text: str, blocks: dict[str, str], required: bool = True) -> str:
@@ -135,7 +180,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     path = Path(args.path)
     text = path.read_text()
-    new = update(text, render_blocks(), required=path.name != "README.md")
+    new = regenerate(path)
+    if new == text and "<!-- BEGIN GENERATED:" not in text:
+        raise SystemExit(f"{path}: no generated-block markers found")
     if args.write:
         path.write_text(new)
         print(f"{path}: generated blocks updated")
