@@ -1,12 +1,18 @@
 """The ``vswrist`` command: one entry point, subcommands implemented in their own modules.
 
 Each subcommand is ``module:function``; the function takes the remaining argv and returns an exit code.
-Modules are imported lazily so that ``vswrist info`` does not import torch.
+Modules are imported lazily so that ``vswrist info`` does not import torch, and so that a core install (no
+[train] extra) runs every command that does not train or load a learned policy.
+
+Output: tables and results go to stdout (print); diagnostics (what a command is doing, files written, warnings) go
+through the module loggers to stderr, at level INFO, or WARNING with ``--quiet``, which also turns progress bars
+off.
 """
 
 from __future__ import annotations
 
 import importlib
+import logging
 import sys
 
 COMMANDS = {
@@ -25,11 +31,89 @@ COMMANDS = {
     "track": ("vswrist_gym.agents.track:main", "a track's runs (with --run) and its results table"),
 }
 
+# The commands that cannot start without the [train] extra: they check it before they write anything.
+NEEDS_TRAIN = ("train", "compare")
+# The top-level modules of each extra: a command that meets one missing names the extra to install.
+EXTRA_MODULES = {
+    "train": ("torch", "stable_baselines3", "sb3_contrib", "tensorboard", "matplotlib", "tqdm", "rich"),
+    "stats": ("rliable", "pandas"),
+    "sweep": ("ray", "optuna"),
+}
+TRAIN_CHECK = ("torch", "stable_baselines3", "sb3_contrib")
+
+
+def missing_extra_message(command: str, module: str) -> str | None:
+    """The one-line message for a command that needs module `module` (top level of a dotted name), or None when
+    no extra provides it."""
+    root = module.split(".")[0]
+    for extra, modules in EXTRA_MODULES.items():
+        if root in modules:
+            return (f"vswrist {command}: error: this needs the [{extra}] extra ({root} is not installed): "
+                    f"pip install 'vswrist-gym[{extra}]'")
+    return None
+
+
+def _missing(modules) -> str | None:
+    """The first of `modules` that cannot be imported, without importing any of them."""
+    import importlib.util
+
+    for name in modules:
+        try:
+            if importlib.util.find_spec(name) is None:
+                return name
+        except (ImportError, ValueError):
+            return name
+    return None
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A handler that writes to whatever sys.stderr is at the time (pytest and tools replace it)."""
+
+    def __init__(self):
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+class _Formatter(logging.Formatter):
+    """INFO lines as they are; warnings and errors say so."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = record.getMessage()
+        if record.levelno >= logging.WARNING:
+            text = f"{record.levelname.lower()}: {text}"
+        if record.exc_info:
+            text += "\n" + self.formatException(record.exc_info)
+        return text
+
+
+def configure_output(quiet: bool = False) -> None:
+    """The package's loggers to stderr at INFO (WARNING when quiet), progress bars off when quiet. Called once per
+    command; calling it again replaces its handler rather than adding a second."""
+    from vswrist_gym.agents import progress
+
+    logger = logging.getLogger("vswrist_gym")
+    for h in list(logger.handlers):
+        if isinstance(h, _StderrHandler):
+            logger.removeHandler(h)
+    handler = _StderrHandler()
+    handler.setFormatter(_Formatter())
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING if quiet else logging.INFO)
+    progress.set_enabled(not quiet)
+
 
 def _usage() -> str:
-    lines = ["usage: vswrist [--version] COMMAND [options]", "", "commands:"]
+    lines = ["usage: vswrist [--version] [-q | --quiet] COMMAND [options]", "", "commands:"]
     lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
-    lines += ["", "`vswrist COMMAND --help` for the options of one command."]
+    lines += ["", "-q, --quiet: warnings and errors only on stderr, no progress bars (results still go to stdout)",
+              "`vswrist COMMAND --help` for the options of one command."]
     return "\n".join(lines)
 
 
@@ -43,17 +127,40 @@ def main(argv: list[str] | None = None) -> int:
 
         print(f"vswrist-gym {__version__}")
         return 0
+    quiet = False
+    while argv and argv[0] in ("-q", "--quiet"):
+        quiet, argv = True, argv[1:]
+    if not argv:
+        print(_usage())
+        return 0
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
         print(f"vswrist: unknown command '{name}'; choose one of: {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
+    # no subcommand has a -q option of its own: `vswrist evaluate ... -q` means the same as `vswrist -q evaluate`
+    quiet = quiet or any(a in ("-q", "--quiet") for a in rest)
+    rest = [a for a in rest if a not in ("-q", "--quiet")]
+    configure_output(quiet)
+    if name in NEEDS_TRAIN and not {"-h", "--help"} & set(rest):
+        absent = _missing(TRAIN_CHECK)
+        if absent is not None:
+            print(missing_extra_message(name, absent), file=sys.stderr)
+            return 2
     module, func = COMMANDS[name][0].split(":")
     try:
         target = getattr(importlib.import_module(module), func)
     except (ImportError, AttributeError) as exc:
-        print(f"vswrist: command '{name}' is not available in this installation ({exc})", file=sys.stderr)
+        message = missing_extra_message(name, getattr(exc, "name", None) or "")
+        print(message or f"vswrist: command '{name}' is not available in this installation ({exc})", file=sys.stderr)
         return 2
-    return int(target(rest) or 0)
+    try:
+        return int(target(rest) or 0)
+    except ModuleNotFoundError as exc:  # e.g. evaluating a learned policy on a core install
+        message = missing_extra_message(name, exc.name or "")
+        if message is None:
+            raise
+        print(message, file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -5,35 +5,44 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 
 
 def limit_threads(n: int = 1) -> None:
-    """One torch thread per process: the machines here have few cores shared by several processes."""
-    import torch
-
+    """One torch thread per process: the machines here have few cores shared by several processes. A core install
+    (no torch) has no torch threads to limit."""
+    try:
+        import torch
+    except ImportError:
+        return
     torch.set_num_threads(n)
+
+
+def _version(module: str, dist: str) -> str | None:
+    """A library's version without importing it (torch takes seconds): the loaded module's own where it is
+    loaded, else the installed distribution's; None where it is not installed (a core install has no torch)."""
+    loaded = sys.modules.get(module)
+    if loaded is not None and getattr(loaded, "__version__", None):
+        return str(loaded.__version__)
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return None
 
 
 def versions() -> dict:
     """Versions of the libraries that determine a result, stored with every run and every evaluation."""
-    import gymnasium
     import mujoco
-    import stable_baselines3
-    import torch
 
-    try:
-        from importlib.metadata import version
-
-        own = version("vswrist-gym")
-    except Exception:  # noqa: BLE001 - not installed as a distribution: report unknown, never fail a run
-        own = "unknown"
-    return {"vswrist_gym": own, "mujoco": mujoco.__version__, "gymnasium": gymnasium.__version__,
-            "stable_baselines3": stable_baselines3.__version__, "torch": torch.__version__,
-            "numpy": np.__version__, "python": platform.python_version(), "platform": platform.platform(),
-            "cpu_count": os.cpu_count()}
+    return {"vswrist_gym": _version("vswrist_gym", "vswrist-gym") or "unknown", "mujoco": mujoco.__version__,
+            "gymnasium": _version("gymnasium", "gymnasium"),
+            "stable_baselines3": _version("stable_baselines3", "stable-baselines3"),
+            "torch": _version("torch", "torch"), "numpy": np.__version__, "python": platform.python_version(),
+            "platform": platform.platform(), "cpu_count": os.cpu_count()}
 
 
 def steps_done(run_dir: Path, prefix: str = "") -> int:
