@@ -109,6 +109,20 @@ def configure_output(quiet: bool = False) -> None:
     progress.set_enabled(not quiet)
 
 
+def _split_quiet(argv: list[str]) -> tuple[bool, list[str]]:
+    """(quiet, argv without -q/--quiet): no command has a -q option of its own, so the flag may stand anywhere."""
+    rest = [a for a in argv if a not in ("-q", "--quiet")]
+    return len(rest) != len(argv), rest
+
+
+def run_tool(main) -> int:
+    """`python -m vswrist_gym.tools.<tool> [-q] ...`: a tool's ``main(argv)`` with the output set up as `vswrist`
+    sets it up (diagnostics on stderr at INFO, -q/--quiet for warnings only and no progress bars)."""
+    quiet, argv = _split_quiet(sys.argv[1:])
+    configure_output(quiet)
+    return int(main(argv) or 0)
+
+
 def _usage() -> str:
     lines = ["usage: vswrist [--version] [-q | --quiet] COMMAND [options]", "", "commands:"]
     lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
@@ -137,10 +151,9 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"vswrist: unknown command '{name}'; choose one of: {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
-    # no subcommand has a -q option of its own: `vswrist evaluate ... -q` means the same as `vswrist -q evaluate`
-    quiet = quiet or any(a in ("-q", "--quiet") for a in rest)
-    rest = [a for a in rest if a not in ("-q", "--quiet")]
-    configure_output(quiet)
+    # `vswrist evaluate ... -q` means the same as `vswrist -q evaluate ...`
+    quiet_here, rest = _split_quiet(rest)
+    configure_output(quiet or quiet_here)
     if name in NEEDS_TRAIN and not {"-h", "--help"} & set(rest):
         absent = _missing(TRAIN_CHECK)
         if absent is not None:

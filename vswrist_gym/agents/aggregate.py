@@ -22,10 +22,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
+
+from vswrist_gym.agents.progress import bar
+
+logger = logging.getLogger(__name__)
 
 INSTALL_HINT = 'rliable is not installed: pip install -e ".[stats]"'
 
@@ -126,9 +131,11 @@ def score_matrix(summaries: Mapping[str, dict], agent: str, headroom: Mapping[st
     return np.array([[p[s] for p in per_task] for s in seeds])
 
 
-def aggregate(scores: Mapping[str, np.ndarray], reps: int = 2000, seed: int = 0) -> dict:
+def aggregate(scores: Mapping[str, np.ndarray], reps: int = 2000, seed: int = 0, step=None) -> dict:
     """Point estimates and stratified-bootstrap 95 % intervals of IQM, median, mean and optimality gap, and the
-    probability of improvement of every ordered pair of runs."""
+    probability of improvement of every ordered pair of runs. ``step()``, if given, is called after each
+    bootstrap (the intervals, then each pair): 1 + n (n - 1) calls for n runs."""
+    step = step or (lambda: None)
     library, metrics, _ = _rliable()
 
     def fn(x):
@@ -137,6 +144,7 @@ def aggregate(scores: Mapping[str, np.ndarray], reps: int = 2000, seed: int = 0)
 
     np.random.seed(seed)  # rliable's bootstrap draws from NumPy's global generator
     point, interval = library.get_interval_estimates(dict(scores), fn, reps=reps)
+    step()
     names = ("iqm", "median", "mean", "optimality_gap")
     out = {"metrics": {k: {n: {"estimate": float(point[k][i]), "low": float(interval[k][0, i]),
                                 "high": float(interval[k][1, i])} for i, n in enumerate(names)}
@@ -153,6 +161,7 @@ def aggregate(scores: Mapping[str, np.ndarray], reps: int = 2000, seed: int = 0)
             out["probability_of_improvement"][f"{a} > {b}"] = {
                 "estimate": float(np.squeeze(p[f"{a},{b}"])), "low": float(np.squeeze(ci[f"{a},{b}"])[0]),
                 "high": float(np.squeeze(ci[f"{a},{b}"])[1])}
+            step()
     return out
 
 
@@ -230,17 +239,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         _rliable()
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        result = aggregate(scores, reps=args.reps)
-        result["tasks"] = tasks
-        result["runs"] = {label: {"dir": str(d), "agent": a} for label, d, a in runs}
-        (out / "aggregate.json").write_text(json.dumps(result, indent=1) + "\n")
-        (out / "aggregate.md").write_text(markdown(result, tasks, scores))
-        profile_plot(scores, out / "profiles.png", reps=args.reps)
+        # the bootstraps: the intervals, one per ordered pair of runs, the performance profiles
+        with bar(total=2 + len(scores) * (len(scores) - 1), desc="bootstraps", unit="bootstrap") as shown:
+            result = aggregate(scores, reps=args.reps, step=shown.update)
+            result["tasks"] = tasks
+            result["runs"] = {label: {"dir": str(d), "agent": a} for label, d, a in runs}
+            (out / "aggregate.json").write_text(json.dumps(result, indent=1) + "\n")
+            (out / "aggregate.md").write_text(markdown(result, tasks, scores))
+            profile_plot(scores, out / "profiles.png", reps=args.reps)
+            shown.update()
     except AggregateError as exc:
         p.exit(2, f"vswrist aggregate: error: {exc}\n")
+    logger.info(f"wrote {out / 'aggregate.json'}, aggregate.md and profiles.png")
     print((out / "aggregate.md").read_text(), end="")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

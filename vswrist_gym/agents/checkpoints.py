@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -16,6 +17,8 @@ from vswrist_gym.agents.fileio import RunDirError, atomic_write_text
 from vswrist_gym.agents.hparams import algo_class
 from vswrist_gym.agents.run_stats import (REPLAY_FILE, VECNORM_FILE, VECNORM_LEGACY_FILE, load_replay_buffer,
                                           load_vecnormalize, save_replay_buffer, save_vecnormalize)
+
+logger = logging.getLogger(__name__)
 
 
 def model_bytes(model) -> bytes:
@@ -136,10 +139,11 @@ def refuse_pickles(run_dir: Path) -> None:
                           f"then continues with an empty replay buffer")
 
 
-def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=print, frame_stack: int = 1):
+def load_newest_intact(run_dir: Path, algo: str, venv, normalize: bool, log=None, frame_stack: int = 1):
     """(checkpoint, model, env) from the newest checkpoint that reads back completely; older ones are tried when
     the newest is damaged (truncated file, missing statistics), and the fallback is reported in one line.
     (None, None, venv) when the run has no checkpoint; RunDirError when none is intact."""
+    log = log or logger.warning
     refuse_pickles(run_dir)
     found = checkpoints(run_dir)
     latest = latest_checkpoint(run_dir)

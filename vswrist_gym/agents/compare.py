@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import os
 import shlex
@@ -25,8 +26,13 @@ from vswrist_gym.agents.baseline import DEFAULT_STIFFNESS_LEVELS
 from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, load_config, track_of
 from vswrist_gym.agents.protocol import (METRICS, check_eval_seeds, evaluate, json_safe, summarise,
                                          write_metrics, write_partial)
-from vswrist_gym.agents.runs import (RunDirError, TrainedAgent, check_new_out, check_seed, check_writable,
-                                     folder_bytes, read_config, steps_done, versions)
+from vswrist_gym.agents.fileio import RunDirError, check_new_out, check_writable, folder_bytes
+from vswrist_gym.agents.procs import steps_done, versions
+from vswrist_gym.agents.progress import set_enabled as set_progress
+from vswrist_gym.agents.run_config import check_seed, read_config
+from vswrist_gym.agents.trained import TrainedAgent
+
+logger = logging.getLogger(__name__)
 
 # what a compare output folder holds: a folder with anything else is refused as --out
 COMPARE_OUTPUT_NAMES = ("table.md", "summary.json", "learning_curves.png", "traces.png", "eval", "runs")
@@ -316,12 +322,13 @@ def write_outputs(out: Path, env_id: str, rows: dict, runs: dict, traces: dict, 
 def compare(task: str, algos=DEFAULT_ALGOS, seeds=(0, 1, 2), episodes: int = 10, stiffness=DEFAULT_STIFFNESS_LEVELS,
             out: str | Path | None = None, timesteps: dict | None = None, configs: dict | None = None,
             n_envs: int | None = None, retrain: bool = False, analytic: bool = True, progress: bool = True,
-            jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=print,
+            jobs: int = 1, runs_dir: str | Path | None = None, argv: list[str] | None = None, log=None,
             track: str | None = None) -> dict:
     from vswrist_gym.agents.evaluate import AgentSpec
-    from vswrist_gym.agents.runs import limit_threads
+    from vswrist_gym.agents.procs import limit_threads
     from vswrist_gym.agents.train import check_run_out, task_id
 
+    log = log or logger.info
     seeds = [check_seed(s, "--seeds") for s in seeds]  # training seeds, and evaluation seeds below
     check_eval_seeds(seeds, episodes)
     env_id = task_id(task)
@@ -378,6 +385,7 @@ def compare(task: str, algos=DEFAULT_ALGOS, seeds=(0, 1, 2), episodes: int = 10,
             env_kwargs_seen.add(json.dumps(agent.cfg.env_kwargs, sort_keys=True))
             recs, tr = evaluate(env_id, lambda env, a=agent: (a.check_env(env), a)[1], [s], episodes,
                                 env_kwargs=agent.cfg.env_kwargs, trace_episode=trace_at,
+                                desc=f"{algo.upper()} seed {s}",
                                 on_record=lambda r, done=list(records): write_partial(out / "eval" / algo, head,
                                                                                       done + r))
             records += recs
@@ -387,8 +395,8 @@ def compare(task: str, algos=DEFAULT_ALGOS, seeds=(0, 1, 2), episodes: int = 10,
         write_metrics(out / "eval" / algo, head, records, rows[algo.upper()])
         log(f"evaluated {algo.upper()}: return {rows[algo.upper()]['return']['mean']:.4g}")
     if len(env_kwargs_seen) > 1:
-        log(f"warning: the {' and '.join(a.upper() for a in algos)} runs use different env_kwargs; their rows are "
-            "not on the same environment")
+        logger.warning(f"the {' and '.join(a.upper() for a in algos)} runs use different env_kwargs; their rows "
+                       "are not on the same environment")
     baselines = []
     if analytic:
         for k in stiffness:
@@ -396,7 +404,7 @@ def compare(task: str, algos=DEFAULT_ALGOS, seeds=(0, 1, 2), episodes: int = 10,
             folder = out / "eval" / f"analytic_{k:+.2f}"
             head = {"task": env_id, "agent": spec.label, "seeds": seeds, "episodes_per_seed": episodes}
             folder.mkdir(parents=True, exist_ok=True)
-            records, tr = evaluate(env_id, spec.make, seeds, episodes, trace_episode=trace_at,
+            records, tr = evaluate(env_id, spec.make, seeds, episodes, trace_episode=trace_at, desc=spec.label,
                                    on_record=lambda r, f=folder, h=head: write_partial(f, h, r))
             rows[spec.label] = summarise(records)
             baselines.append(spec.label)
@@ -449,6 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    if args.no_progress:
+        set_progress(False)
     try:
         for k in args.stiffness:
             if not -1.0 <= k <= 1.0:
@@ -480,9 +490,9 @@ def main(argv: list[str] | None = None) -> int:
         if what.startswith("FAILED"):
             print(f"  {name}: {what}")
     out = doc["out"]
-    print(f"\ntable: {out / 'table.md'}\nplots: {out / 'learning_curves.png'}, {out / 'traces.png'}"
-          f"\nper-episode metrics: {out / 'eval'}/*/metrics.csv")
+    logger.info(f"wrote {out / 'table.md'}, plots {out / 'learning_curves.png'} and {out / 'traces.png'}, "
+                f"per-episode metrics {out / 'eval'}/*/metrics.csv")
     fp = doc["footprint"]
     per_algo = ", ".join(f"{a} {n / 1e6:.1f} MB" for a, n in fp["run_bytes"].items())
-    print(f"disk: {fp['out_bytes'] / 1e6:.1f} MB in {out}; run directories in {fp['runs_dir']} ({per_algo})")
+    logger.info(f"disk: {fp['out_bytes'] / 1e6:.1f} MB in {out}; run directories in {fp['runs_dir']} ({per_algo})")
     return 0

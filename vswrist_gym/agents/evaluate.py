@@ -12,6 +12,7 @@ every finished episode is saved to OUT/episodes.partial.jsonl at once, so a cras
 from __future__ import annotations
 
 import argparse
+import logging
 import shlex
 import sys
 from pathlib import Path
@@ -19,7 +20,11 @@ from pathlib import Path
 from vswrist_gym.agents.hparams import ConfigError
 from vswrist_gym.agents.protocol import (METRICS, PARTIAL_FILE, RATE_METRICS, TASK_METRICS, check_eval_seeds,
                                          evaluate, summarise, write_metrics, write_partial)
-from vswrist_gym.agents.runs import RunDirError, TrainedAgent, check_new_out, check_writable, versions
+from vswrist_gym.agents.fileio import RunDirError, check_new_out, check_writable
+from vswrist_gym.agents.procs import versions
+from vswrist_gym.agents.trained import TrainedAgent
+
+logger = logging.getLogger(__name__)
 
 # what an evaluation output folder holds: a folder with anything else is refused as --out
 EVAL_OUTPUT_NAMES = ("metrics.json", "metrics.csv", PARTIAL_FILE)
@@ -101,7 +106,7 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
     """Evaluate and write DIR/metrics.json and DIR/metrics.csv; returns the metrics document. A trained agent is
     scored beside the best constant stiffness on the same episodes (`baseline`; see agents.baseline), stored in
     metrics.json under 'baseline'."""
-    from vswrist_gym.agents.runs import limit_threads
+    from vswrist_gym.agents.procs import limit_threads
     from vswrist_gym.agents.train import task_id
 
     out = Path(out)
@@ -128,7 +133,7 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
         header["video"] = str(video)
     out.mkdir(parents=True, exist_ok=True)
     records, trace = evaluate(env_id, spec.make, seeds, episodes, env_kwargs=spec.env_kwargs,
-                              trace_episode=trace_episode, video_path=video,
+                              trace_episode=trace_episode, video_path=video, desc=spec.label,
                               on_record=lambda recs: write_partial(out, header, recs))
     summary = summarise(records)
     if baseline and spec.kind == "trained":
@@ -191,13 +196,13 @@ def main(argv: list[str] | None = None) -> int:
     if "model_file" in doc:
         print(f"model: {doc['model_file']}")
     if "model_note" in doc:
-        print(doc["model_note"])
+        logger.warning(doc["model_note"])
     print(format_summary(doc["summary"]))
     if "baseline" in doc:
         from vswrist_gym.agents.baseline import format_baseline
 
         print(format_baseline(doc["baseline"]))
-    print(f"metrics: {Path(args.out) / 'metrics.json'} and metrics.csv")
+    logger.info(f"wrote {Path(args.out) / 'metrics.json'} and metrics.csv")
     if args.video:
-        print(f"video: {args.video}")
+        logger.info(f"wrote {args.video}")
     return 0

@@ -199,7 +199,8 @@ def _batchable(env_id: str) -> bool:
 
 def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | None = None,
              trace_episode: tuple[int, int] | None = None, video_path: str | Path | None = None,
-             progress=None, on_record=None, batch: bool | None = None) -> tuple[list[dict], dict | None]:
+             progress=None, on_record=None, batch: bool | None = None,
+             desc: str | None = None) -> tuple[list[dict], dict | None]:
     """Evaluate one agent under the protocol; returns per-episode records and the requested episode's trace.
 
     With ``batch`` (default ``BATCH_EPISODES``) the episodes of one seed run as the worlds of one VS-Wrist batch
@@ -208,15 +209,18 @@ def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | N
 
     `make_agent(env)` builds the agent for an environment (the analytic agent needs it; a trained one ignores it).
     `on_record(records)` is called with the records so far after every episode (to save them as they come).
+    `desc` names the agent on the progress bar (agents.progress: drawn on a terminal only).
     """
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401
+    from vswrist_gym.agents.progress import bar
 
     seeds = check_eval_seeds(seeds, episodes)
     env_kwargs = dict(env_kwargs or {})
     env = gym.make(env_id, **env_kwargs)
     venv = None
+    shown = bar(total=len(seeds) * episodes, desc=f"{desc or env_id}: episodes", unit="episode")
     try:
         agent = make_agent(env)
         records, trace = [], None
@@ -234,7 +238,9 @@ def evaluate(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | N
                     on_record(records)
                 if progress is not None:
                     progress()
+                shown.update()
     finally:
+        shown.close()
         env.close()
         if venv is not None:
             venv.close()
@@ -341,7 +347,7 @@ PARTIAL_FILE = "episodes.partial.jsonl"  # the episodes finished so far; gone on
 def write_partial(out_dir: Path, header: dict, records: list[dict]) -> Path:
     """Rewrite DIR/episodes.partial.jsonl (a header line, then one line per finished episode) atomically, so a
     crash or kill during an evaluation loses no finished episode and never leaves a half-written file."""
-    from vswrist_gym.agents.runs import atomic_write_text
+    from vswrist_gym.agents.fileio import atomic_write_text
 
     path = Path(out_dir) / PARTIAL_FILE
     lines = [json.dumps(json_safe({"header": header}))] + [json.dumps(json_safe(r)) for r in records]
@@ -357,7 +363,7 @@ def read_partial(path: Path) -> tuple[dict, list[dict]]:
 
 def write_metrics(out_dir: Path, header: dict, records: list[dict], summary: dict) -> tuple[Path, Path]:
     """DIR/metrics.json and DIR/metrics.csv, each written atomically; then the partial file is dropped."""
-    from vswrist_gym.agents.runs import atomic_write_text
+    from vswrist_gym.agents.fileio import atomic_write_text
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import shlex
 import shutil
@@ -22,12 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from vswrist_gym.agents.hparams import ALGO_NAMES, TRACKS, ConfigError, RunConfig, load_config, track_of, with_track
-from vswrist_gym.agents.runs import (VECNORM_FILE, RunDirError, atomic_write_bytes, check_env_id, check_env_kwargs,
-                                     check_new_out, check_seed, check_writable, created_root, latest_checkpoint,
-                                     limit_threads, load_newest_intact, make_vec_env, model_bytes, override,
-                                     process_alive, read_config, refuse_pickles, save_checkpoint, save_vecnormalize,
-                                     steps_done, this_process, update_run_json, versions, wrap_frame_stack,
-                                     wrap_normalize, write_config)
+from vswrist_gym.agents.checkpoints import (latest_checkpoint, load_newest_intact, model_bytes, refuse_pickles,
+                                            save_checkpoint)
+from vswrist_gym.agents.env_factory import (check_env_id, check_env_kwargs, make_vec_env, wrap_frame_stack,
+                                            wrap_normalize)
+from vswrist_gym.agents.fileio import RunDirError, atomic_write_bytes, check_new_out, check_writable, created_root
+from vswrist_gym.agents.procs import limit_threads, process_alive, steps_done, this_process, versions
+from vswrist_gym.agents.run_config import check_seed, override, read_config, update_run_json, write_config
+from vswrist_gym.agents.run_stats import VECNORM_FILE, save_vecnormalize
+from vswrist_gym.agents.progress import shown as progress_shown
+
+logger = logging.getLogger(__name__)
 
 
 class TrainingError(RuntimeError):
@@ -228,11 +234,12 @@ def _remove_half_made(run_dir: Path, root: Path | None) -> None:
 
 def train(task: str, algo: str, out: str | Path, config: str | Path | None = None, timesteps: int | None = None,
           seed: int = 0, n_envs: int | None = None, resume: bool = False, progress: bool = True,
-          argv: list[str] | None = None, torch_threads: int = 1, log=print, vec_env: str | None = None,
+          argv: list[str] | None = None, torch_threads: int = 1, log=None, vec_env: str | None = None,
           track: str | None = None) -> Path:
     """Train (or resume) one run; returns the run directory. Raises ConfigError / RunDirError on bad input,
     before anything is written; a new run that fails to start leaves nothing behind. ``track``: 'stiffness' (the
     policy sets only the stiffness) or 'full' (posture and stiffness); None trains the entry as it is."""
+    log = log or logger.info
     run_dir = Path(out)
     seed = check_seed(seed)
     if algo not in ALGO_NAMES:
@@ -311,7 +318,8 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             try:
                 with guard:
                     model.learn(total_timesteps=remaining, callback=[guard.stop_callback(), *callbacks],
-                                progress_bar=progress, reset_num_timesteps=checkpoint is None, tb_log_name=algo)
+                                progress_bar=progress and progress_shown(),
+                                reset_num_timesteps=checkpoint is None, tb_log_name=algo)
                 if guard.requested:
                     raise KeyboardInterrupt
             except KeyboardInterrupt:
@@ -401,5 +409,5 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
-    print(f"run directory: {run_dir}  (TensorBoard: tensorboard --logdir {run_dir / 'tb'})")
+    logger.info(f"run directory: {run_dir}  (TensorBoard: tensorboard --logdir {run_dir / 'tb'})")
     return 0

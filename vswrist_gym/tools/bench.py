@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
 import statistics
@@ -32,6 +33,8 @@ from datetime import datetime, timezone
 import numpy as np
 
 from vswrist_gym import LATEST, TASKS, newest_task_name
+
+logger = logging.getLogger(__name__)
 
 
 def _pin_one_core() -> int | None:
@@ -480,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(results, fh, indent=2)
-        print(f"results written to {args.json}")
+        logger.info(f"wrote {args.json}")
     return 0
 
 
@@ -568,4 +571,6 @@ def _batched(args, results: dict, cpu) -> None:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--episodes must be >= 2 (a paired standard error needs two episodes)")
 
     from vswrist_gym.agents.hparams import ConfigError
-    from vswrist_gym.agents.runs import RunDirError
+    from vswrist_gym.agents.fileio import RunDirError
     from vswrist_gym.tools.probe import probe
 
     seeds = list(range(args.seed0, args.seed0 + args.episodes))
@@ -99,4 +99,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

@@ -11,12 +11,14 @@ Rendering is offscreen: EGL on Linux without a display (the package's rule), or 
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 from pathlib import Path
 
 import numpy as np
 
 from vswrist_gym import LATEST, TASKS, newest_task_name
+
+logger = logging.getLogger(__name__)
 
 # The control step at which each task's object is in view and in use: the tool on the surface (Polish), against
 # the obstacle (Impact), in the hole (Insertion), the drill engaged (Drill), the load hanging (LoadHold) (50 Hz);
@@ -64,9 +66,12 @@ def main(argv: list[str] | None = None) -> int:
     for task in args.tasks:
         path = out / f"{task}.png"
         save_png(path, frame(task, seed=args.seed))
-        print(f"{path}: {task}, step {PICTURE_STEP[task]}, seed {args.seed}, {path.stat().st_size // 1024} KiB")
+        logger.info(f"wrote {path}: {task}, step {PICTURE_STEP[task]}, seed {args.seed}, "
+                    f"{path.stat().st_size // 1024} KiB")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

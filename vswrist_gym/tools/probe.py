@@ -34,10 +34,13 @@ means what its task means gives the flailing agents no more success than the bas
 from __future__ import annotations
 
 import argparse
+import logging
 
 import numpy as np
 
 from vswrist_gym import LATEST, TASKS, newest_task_name
+
+logger = logging.getLogger(__name__)
 
 CONSTANT_COMMANDS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 ERR_ON = 0.03   # rad
@@ -511,16 +514,18 @@ def main(argv: list[str] | None = None) -> int:
             path = Path(args.write)
             block = "headroom" if args.variant is None else f"headroom-{args.variant}"
             path.write_text(update(path.read_text(), {block: table}))
-            print(f"{path}: {block} block updated")
+            logger.info(f"{path}: {block} block updated")
         if args.headroom_json:
             import json
             from pathlib import Path
 
             doc = headroom_json(results, args.episodes, args.seed0)
             Path(args.headroom_json).write_text(json.dumps(doc, indent=1) + "\n")
-            print(f"{args.headroom_json}: {len(doc['tasks'])} tasks")
+            logger.info(f"wrote {args.headroom_json}: {len(doc['tasks'])} tasks")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import platform
 import time
@@ -43,6 +44,8 @@ import numpy as np
 from ..control import AnalyticController
 from ..params import DEVICE_PRESETS, IDENTIFIED_PRESETS, PRESETS, load_params
 from ..stiffness import coupler_stiffness, spring_torque
+
+logger = logging.getLogger(__name__)
 
 PAPER = {"rms_error_ls": 0.15, "rms_error_hs": 0.007, "rms_torque_ls": 0.07, "rms_torque_hs": 1.72}
 NUMBER_KEYS = tuple(PAPER)
@@ -405,9 +408,11 @@ def main(argv: list[str] | None = None) -> int:
                   f"{d['rms_error_ls']:.3g} / HS {d['rms_error_hs']:.3g} rad, RMS torque LS {d['rms_torque_ls']:.3g} / "
                   f"HS {d['rms_torque_hs']:.3g} N m (ratios {d['error_ratio_ls_over_hs']:.3g} / "
                   f"{d['torque_ratio_hs_over_ls']:.3g})")
-    print(f"figures and results.json in {args.out}")
+    logger.info(f"wrote the figures and results.json in {args.out}")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

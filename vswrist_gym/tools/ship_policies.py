@@ -20,6 +20,7 @@ import argparse
 import datetime
 import hashlib
 import json
+import logging
 import math
 import os
 import platform
@@ -33,6 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from vswrist_gym import pretrained
+
+logger = logging.getLogger(__name__)
 
 SHIP = (("LoadHold", "full"), ("Polish", "full"), ("Impact", "full"), ("Insertion", "full"), ("Drill", "full"),
         ("Hammer", "stiffness"), ("LoadHold", "stiffness"), ("Polish", "stiffness"), ("Impact", "stiffness"),
@@ -109,8 +112,9 @@ def train_command(task: str, track: str, out: Path, timesteps: int | None) -> li
     return args + (["--timesteps", str(timesteps)] if timesteps else [])
 
 
-def train_all(items, work: Path, timesteps: int | None, jobs: int, log=print) -> None:
+def train_all(items, work: Path, timesteps: int | None, jobs: int, log=None) -> None:
     """Train what is missing, `jobs` subprocesses at a time; a run with a final model.zip is kept as it is."""
+    log = log or logger.info
     queue = []
     for task, track in items:
         run = work / "runs" / pretrained.folder_name(task, track)
@@ -177,7 +181,7 @@ def evaluate_item(task: str, track: str, folder: Path, work: Path, seeds, episod
     from vswrist_gym.agents import evaluate as ev
     from vswrist_gym.agents.compare import against_baseline, best_baseline
     from vswrist_gym.agents.protocol import evaluate
-    from vswrist_gym.agents.runs import TrainedAgent
+    from vswrist_gym.agents.trained import TrainedAgent
 
     name = pretrained.folder_name(task, track)
     agent_text = f"pretrained:{task}:{track}" if folder.parent == pretrained.ROOT else str(folder)
@@ -236,7 +240,8 @@ def file_table(folder: Path) -> dict:
 
 
 def write_card(task: str, track: str, run: Path, folder: Path, result: dict) -> dict:
-    from vswrist_gym.agents.runs import atomic_write_text, read_config
+    from vswrist_gym.agents.fileio import atomic_write_text
+    from vswrist_gym.agents.run_config import read_config
 
     cfg, seed = read_config(run)
     run_doc = json.loads((run / "run.json").read_text())
@@ -359,7 +364,7 @@ def update_readme(path: Path, root: Path | None = None) -> None:
 
 def _evaluate_job(args):
     task, track, run, folder, work, seeds, episodes, stiffness = args
-    from vswrist_gym.agents.runs import limit_threads
+    from vswrist_gym.agents.procs import limit_threads
 
     limit_threads(1)
     ship_run(run, folder)
@@ -397,9 +402,11 @@ def main(argv: list[str] | None = None) -> int:
                 print(line)
     if args.readme:
         update_readme(Path(args.readme), dest)
-        print(f"{args.readme}: table of shipped policies rewritten")
+        logger.info(f"{args.readme}: table of shipped policies rewritten")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

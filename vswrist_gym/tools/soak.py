@@ -237,10 +237,10 @@ def run_soak(steps: int = 1_000_000, tasks=TASKS, seed: int = 0, warmup: float =
     cells = _plan(steps, tasks, rebuild_fraction, seed)
     warm_at = int(math.ceil(warmup * steps))
     every = max(1, int(round(SAMPLE_EVERY * steps)))
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=steps, unit="step", smoothing=0.05, mininterval=1.0, file=sys.stderr)
+    from vswrist_gym.agents.progress import bar as progress_bar
+
+    # on a terminal, with tqdm, unless --no-progress or vswrist --quiet
+    bar = progress_bar(total=steps, desc="soak", unit="step", disable=not progress, smoothing=0.05, mininterval=1.0)
     done = 0
     rss_warm, samples, next_sample = None, [], None
     t0 = time.perf_counter()
@@ -258,8 +258,7 @@ def run_soak(steps: int = 1_000_000, tasks=TASKS, seed: int = 0, warmup: float =
                     if c.steps < c.budget and (first or c.steps / c.budget <= progress_now):
                         n = _episode(c, first)
                         done += n
-                        if bar is not None:
-                            bar.update(n)
+                        bar.update(n)
                 first = False
                 # samples between rounds, so that every environment is between episodes
                 if rss_warm is None and done >= warm_at:
@@ -270,8 +269,7 @@ def run_soak(steps: int = 1_000_000, tasks=TASKS, seed: int = 0, warmup: float =
                     samples.append((done, _rss_now(trim)))
                     next_sample = done + every
         finally:
-            if bar is not None:
-                bar.close()
+            bar.close()
             for c in cells:
                 if c.env is not None:
                     c.env.close()
@@ -352,4 +350,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

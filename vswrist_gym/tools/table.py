@@ -13,9 +13,12 @@ document, not the package, names where its results live).
 from __future__ import annotations
 
 import argparse
+import logging
 import re
 import sys
 from pathlib import Path
+
+logger = logging.getLogger(__name__)
 
 
 def _envs():
@@ -186,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"{path}: no generated-block markers found")
     if args.write:
         path.write_text(new)
-        print(f"{path}: generated blocks updated")
+        logger.info(f"{path}: generated blocks updated")
         return 0
     if args.check:
         if new != text:
@@ -199,4 +202,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

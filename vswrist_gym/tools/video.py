@@ -20,6 +20,7 @@ Rendering follows the package's rule (``vswrist_gym/__init__.py``): EGL on Linux
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from pathlib import Path
@@ -29,6 +30,8 @@ import numpy as np
 from vswrist_gym import TASKS, resolve_id
 from vswrist_gym.agents.evaluate import CHECKPOINT_CHOICES, CHECKPOINT_HELP
 from vswrist_gym.agents.hparams import ALGO_NAMES
+
+logger = logging.getLogger(__name__)
 
 
 def reference_agent(env, stiffness: float):
@@ -72,7 +75,8 @@ def stateful_policy(agent):
 def check_video_args(args) -> None:
     """Everything the command line fixes, before an environment is built: the seed's range, the frame size and
     that --out can be written (its folder exists or can be made, is writable, and --out is not a folder)."""
-    from vswrist_gym.agents.runs import RunDirError, check_seed, check_writable
+    from vswrist_gym.agents.fileio import RunDirError, check_writable
+    from vswrist_gym.agents.run_config import check_seed
     from vswrist_gym.envs.config import OFFSCREEN_SIZE
 
     check_seed(args.seed)
@@ -132,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     if not builtin:
         from vswrist_gym.agents.evaluate import AgentSpec
         from vswrist_gym.agents.hparams import ConfigError
-        from vswrist_gym.agents.runs import RunDirError
+        from vswrist_gym.agents.fileio import RunDirError
 
         try:
             spec = AgentSpec(args.agent, checkpoint=args.checkpoint)
@@ -143,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"vswrist video: error: {exc}", file=sys.stderr)
             return 2
         if spec.trained is not None and spec.trained.note:
-            print(spec.trained.note)
+            logger.warning(spec.trained.note)
         kwargs = dict(spec.env_kwargs)  # the run's own settings (action mode), rendering added to them
     config = dict(kwargs.pop("config", None) or {})
     config["render"] = {**(config.get("render") or {}), **render}
@@ -202,4 +206,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))

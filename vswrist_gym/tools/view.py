@@ -16,6 +16,7 @@ open a window, the command stops with one line saying so.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import sys
@@ -23,6 +24,8 @@ import time
 
 from vswrist_gym import TASKS, resolve_id
 from vswrist_gym.agents.evaluate import CHECKPOINT_CHOICES, CHECKPOINT_HELP
+
+logger = logging.getLogger(__name__)
 
 KEY_SPACE, KEY_RIGHT, KEY_BACKSPACE = 32, 262, 259  # GLFW key codes, as the viewer's key_callback reports them
 
@@ -182,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
 
         from vswrist_gym.agents.evaluate import AgentSpec
         from vswrist_gym.agents.hparams import ConfigError
-        from vswrist_gym.agents.runs import RunDirError
+        from vswrist_gym.agents.fileio import RunDirError
 
         try:
             spec = AgentSpec(args.agent, checkpoint=args.checkpoint)
@@ -196,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vswrist view: error: {exc}", file=sys.stderr)
         return 2
     session = ViewerSession(env, agent, seed=args.seed, speed=args.speed)
-    print(f"vswrist view: {env_id}, agent {args.agent}; space pauses, right arrow steps, backspace restarts")
+    logger.info(f"vswrist view: {env_id}, agent {args.agent}; space pauses, right arrow steps, backspace restarts")
     try:
         session.run(mujoco.viewer.launch_passive, duration=args.duration)
     except RuntimeError as exc:  # e.g. macOS outside mjpython
@@ -212,4 +215,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from vswrist_gym.cli import run_tool
+
+    raise SystemExit(run_tool(main))
