@@ -548,6 +548,7 @@ def test_evaluate_takes_the_newest_model_run_json_accounts_for(sac_run, tmp_path
     assert plain.model_path == sac_run / "model.zip" and plain.note is None
     res = vswrist("evaluate", "--task", TASK, "--agent", run, "--episodes", 1, "--seeds", 0, "--out", tmp_path / "ev")
     assert res.returncode == 0, res.stderr
-    assert f"model: {newer / 'model.zip'}" in res.stdout and "newest model run.json accounts for" in res.stdout
+    assert f"model: {newer / 'model.zip'}" in res.stdout  # the result names the model it scored
+    assert "newest model run.json accounts for" in res.stderr  # a note: a diagnostic, on stderr
     meta = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert meta["model_file"] == str(newer / "model.zip")

@@ -58,4 +58,4 @@ def bar(total: float | None = None, desc: str | None = None, unit: str = "it", d
         from tqdm import tqdm
     except ImportError:  # a core install: tqdm comes with the [train] extra
         return NoBar()
-    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, leave=False, **kwargs)
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, **kwargs)
