@@ -528,7 +528,7 @@ def test_compare_end_to_end(tmp_path):
     args[seeds_at + 1:seeds_at + 3] = ["0", "1", "2"]
     res = vswrist(*args, "--jobs", "1")
     assert res.returncode == 0, res.stderr
-    assert res.stdout.count("loaded") == 4 and "ppo seed 2] train" in res.stdout
+    assert res.stderr.count("loaded") == 4 and "ppo seed 2] train" in res.stderr  # what it did: diagnostics
     summary = json.loads((tmp_path / "cmp" / "summary.json").read_text())
     assert summary["rows"]["PPO"]["return"]["n"] == 3 and summary["rows"]["SAC"]["return"]["n"] == 3
 
