@@ -86,3 +86,36 @@ def test_evaluation_counts_its_episodes_on_a_terminal(monkeypatch):
     # the bar counts 2 seeds x 2 episodes and moves as they finish (tqdm draws at most every 0.1 s, and a bar
     # that is not left on screen is erased at the end instead of drawn full)
     assert "analytic: episodes:   0%" in text and "| 0/4 [" in text and "| 1/4 [" in text
+
+
+def test_commands_run_by_a_quiet_command_stay_quiet(tmp_path, monkeypatch, capsys):
+    """`vswrist -q track --run` runs other commands in its process: they are quiet too, and a command run after
+    the quiet one in the same process is not."""
+    import logging
+
+    from vswrist_gym import cli
+
+    seen = []
+
+    def fake(argv):
+        seen.append(logging.getLogger("vswrist_gym").getEffectiveLevel())
+        if argv:
+            return cli.main(argv)  # the inner command
+        logging.getLogger("vswrist_gym.test").info("inner info")
+        return 0
+
+    monkeypatch.setitem(cli.COMMANDS, "fake", ("tests_fake_module:main", ""))
+    fake_module = type(sys)("tests_fake_module")
+    fake_module.main = fake
+    monkeypatch.setitem(sys.modules, "tests_fake_module", fake_module)
+    try:
+        assert cli.main(["-q", "fake", "fake"]) == 0
+        assert seen == [logging.WARNING, logging.WARNING]
+        assert cli.main(["fake"]) == 0
+        assert seen[-1] == logging.INFO and "inner info" in capsys.readouterr().err
+    finally:  # the package's logger as a library user has it: no handler, no level, bars allowed
+        logger = logging.getLogger("vswrist_gym")
+        for h in list(logger.handlers):
+            logger.removeHandler(h)
+        logger.setLevel(logging.NOTSET)
+        progress.set_enabled(True)

@@ -151,9 +151,24 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"vswrist: unknown command '{name}'; choose one of: {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
-    # `vswrist evaluate ... -q` means the same as `vswrist -q evaluate ...`
+    # `vswrist evaluate ... -q` means the same as `vswrist -q evaluate ...`; a command that runs others in this
+    # process (`vswrist track --run`) passes its quietness on to them
     quiet_here, rest = _split_quiet(rest)
-    configure_output(quiet or quiet_here)
+    quiet = quiet or quiet_here or (bool(_running) and _running[-1])
+    configure_output(quiet)
+    _running.append(quiet)
+    try:
+        return _dispatch(name, rest)
+    finally:
+        _running.pop()
+        if _running:  # back to the calling command's setting
+            configure_output(_running[-1])
+
+
+_running: list[bool] = []  # quietness of the `vswrist` commands running in this process, outermost first
+
+
+def _dispatch(name: str, rest: list[str]) -> int:
     if name in NEEDS_TRAIN and not {"-h", "--help"} & set(rest):
         absent = _missing(TRAIN_CHECK)
         if absent is not None:

@@ -116,10 +116,11 @@ def run(task: str, agent: str, episodes: int, seeds: list[int], out: str | Path,
         check_writable(Path(video).parent, "--video")
         if Path(video).is_dir():
             raise ConfigError(f"--video {video} is a folder; give a file name such as episode.mp4")
-    limit_threads(1)
     env_id = task_id(task)
     spec = AgentSpec(agent, checkpoint=checkpoint)
     spec.check_task(env_id)
+    if spec.kind == "trained":  # the analytic agent needs no torch: it is not imported for it
+        limit_threads(1)
     header = {"task": env_id, "agent": spec.label, "agent_spec": agent, "checkpoint": checkpoint,
               "episodes_per_seed": episodes, "seeds": list(seeds), "versions": versions()}
     if argv is not None:
