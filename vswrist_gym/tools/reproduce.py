@@ -291,6 +291,12 @@ def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS + IDENTIFIE
     }
     figures = []
     implied_presets = []
+    from vswrist_gym.agents.progress import bar
+
+    paper_springs = load_params("paper").spring
+    # one step per preset, then one per preset with the paper's springs (its implied-load scenarios)
+    shown = bar(total=len(presets) + sum(load_params(n).spring == paper_springs for n in presets),
+                desc="reproduce: presets", unit="preset")
     for name in presets:
         params = load_params(name)
         res, runs = _preset_results(params, duration, gravity_compensation)
@@ -298,8 +304,9 @@ def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS + IDENTIFIE
         if name not in IDENTIFIED_PRESETS:      # same springs and kinematics as `paper`: the same 3a/3b
             figures += [str(p) for p in figure_3ab(params, out_dir)]
         figures.append(str(figure_3c(params, runs, res, out_dir)))
-        if params.spring == load_params("paper").spring:  # the implied load is derived from these springs
+        if params.spring == paper_springs:  # the implied load is derived from these springs
             implied_presets.append(name)
+        shown.update()
     for name in implied_presets:
         params = load_params(name)
         implied, runs = implied_load_scenario(params, duration)
@@ -310,6 +317,8 @@ def run(out: str | Path, quick: bool = False, presets=DEVICE_PRESETS + IDENTIFIE
                                      f"{IMPLIED_LOAD_TORQUE} N m load, gravity off")))
         results.setdefault("forearm_vertical", {})[name] = forearm_vertical_scenario(params, duration,
                                                                                      gravity_compensation)
+        shown.update()
+    shown.close()
     default = results.get("paper")
     if default is not None:
         results["criteria"] = {

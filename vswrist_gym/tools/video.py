@@ -178,14 +178,19 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     # written under a temporary name and renamed at the end: a failed or interrupted video never replaces a file
     tmp = out.with_name(f".{out.stem}.partial.mp4")
+    from vswrist_gym.agents.progress import bar
+
     try:
-        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer:
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer, \
+                bar(total=env.unwrapped.episode_steps + 1, desc="video: frames", unit="frame") as shown:
             writer.append_data(env.render())
+            shown.update()
             while not done:
                 obs, r, term, trunc, info = env.step(policy(obs))
                 total += r
                 done = term or trunc
                 writer.append_data(env.render())
+                shown.update()
         os.replace(tmp, out)
     except OSError as exc:
         print(f"vswrist video: error: writing {out}: {exc}", file=sys.stderr)
