@@ -318,7 +318,9 @@ def train(task: str, algo: str, out: str | Path, config: str | Path | None = Non
             try:
                 with guard:
                     model.learn(total_timesteps=remaining, callback=[guard.stop_callback(), *callbacks],
-                                progress_bar=progress and progress_shown(),
+                                # SB3's bar is tqdm.rich, drawn by rich on stdout: only when both streams are a
+                                # terminal, so that no bar lands in a file that holds a command's results
+                                progress_bar=progress and progress_shown() and sys.stdout.isatty(),
                                 reset_num_timesteps=checkpoint is None, tb_log_name=algo)
                 if guard.requested:
                     raise KeyboardInterrupt
