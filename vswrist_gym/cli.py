@@ -49,7 +49,7 @@ def missing_extra_message(command: str, module: str) -> str | None:
     for extra, modules in EXTRA_MODULES.items():
         if root in modules:
             return (f"vswrist {command}: error: this needs the [{extra}] extra ({root} is not installed): "
-                    f"pip install 'vswrist-gym[{extra}]'")
+                    f"pip install 'vswrist-gym[{extra}]' (in a clone: pip install -e '.[{extra}]')")
     return None
 
 
