@@ -99,6 +99,8 @@ def test_analytic_evaluation_and_video_run_on_a_core_install(tmp_path, headless_
                  "--width", "64", "--height", "48", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "ep.mp4").stat().st_size > 0
+    r = _vswrist("info", cwd=tmp_path)  # the analytic model: stiffness range and the kinematics self-check
+    assert r.returncode == 0 and "(ok)" in r.stdout, r.stderr
 
 
 @pytest.mark.parametrize("args", [
