@@ -21,9 +21,9 @@ one array, on the world's thread, so that the batch reads every world's simulato
 An error MuJoCo raises inside a world (``mju_error``) is intercepted as the Python bindings intercept it (a
 thread-local log handler that jumps back to the world's ``setjmp``): that world's status says so and the
 batch raises ``mujoco.FatalError`` naming it, as the bindings' ``mj_step`` would raise it; the process
-lives on. The library is C++ (its thread pool); it is compiled once per MuJoCo version with the system C++
-compiler into the cache directory of the plugin library; where there is none, ``load()`` returns None and
-the batch steps world by world through ``WristSim``.
+lives on. The library is C++ (its thread pool, ``csrc/vswrist_advance.cc``); the system C++ compiler builds it
+once per ``plugin_lib.library_key`` into the cache directory of the plugin library; where there is none,
+``load()`` returns None and the batch steps world by world through ``WristSim``.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .plugin_lib import build_library
+from .plugin_lib import CSRC, build_library
 
 # columns of the handle table (one row per world, uint64): what the call needs of each world's MjModel/MjData
 H_MODEL, H_DATA, H_PEAK, H_METER, H_METER_SIZE = range(5)
@@ -49,237 +49,26 @@ SYNC_NONE, SYNC_KINEMATICS, SYNC_FORWARD = 0, 1, 2
 # MjData arrays (flattened: xpos[b] starts at 3 b) and the loop-closure peak (start and count 0, 1)
 F_QPOS, F_QVEL, F_XPOS, F_XQUAT, F_XMAT, F_CVEL, F_SENSOR, F_SITE_XMAT, F_PEAK = range(9)
 
-SOURCE = r"""
-#include <stdint.h>
-#include <string.h>
-#include <time.h>
-#include <condition_variable>
-#include <mutex>
-#include <thread>
-#include <vector>
-#include <setjmp.h>
-#include <mujoco/mujoco.h>
+SOURCE = CSRC / "vswrist_advance.cc"
 
-/* MuJoCo's thread-local log handler (exported by libmujoco, declared in its private header; the Python
-   bindings intercept errors the same way): an error inside a world's step jumps back to that world's
-   setjmp below instead of ending the process; other messages go on to the global handler. */
-extern "C" MJAPI mjfLogHandler _mjPRIVATE_setTlsLogHandler(mjfLogHandler handler);
-extern "C" MJAPI mjfLogHandler _mjPRIVATE_getGlobalLogHandler(void);
 
-static thread_local jmp_buf* tls_jump = NULL;
+def advance_defines() -> dict[str, str]:
+    """The -D flags of the C++ source: the layouts and codes it shares with this module, defined here only."""
+    names = {"HANDLE_COLUMNS": HANDLE_COLUMNS, "H_MODEL": H_MODEL, "H_DATA": H_DATA, "H_PEAK": H_PEAK,
+             "H_METER": H_METER, "H_METER_SIZE": H_METER_SIZE, "OK": OK, "DIVERGED": DIVERGED,
+             "MUJOCO_ERROR": MUJOCO_ERROR, "SYNC_KINEMATICS": SYNC_KINEMATICS, "SYNC_FORWARD": SYNC_FORWARD,
+             "F_QPOS": F_QPOS, "F_QVEL": F_QVEL, "F_XPOS": F_XPOS, "F_XQUAT": F_XQUAT, "F_XMAT": F_XMAT,
+             "F_CVEL": F_CVEL, "F_SENSOR": F_SENSOR, "F_SITE_XMAT": F_SITE_XMAT}
+    return {f"VSWRIST_{k}": str(v) for k, v in names.items()}
 
-static void on_log(const mjLogMessage* msg) {
-  if (msg->level == mjLOG_ERROR && tls_jump) longjmp(*tls_jump, 1);
-  mjfLogHandler global = _mjPRIVATE_getGlobalLogHandler();
-  if (global) global(msg);
-}
-
-static double thread_seconds(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-/* Copies what plan names (nplan rows of field, start, count) from a synced world into its row of out. */
-static void gather(const mjData* d, const uint64_t* row, const int32_t* plan, int nplan, double* out) {
-  for (int p = 0; p < nplan; p++) {
-    const int32_t f = plan[3 * p], start = plan[3 * p + 1], n = plan[3 * p + 2];
-    const mjtNum* src = f == @F_QPOS@ ? d->qpos : f == @F_QVEL@ ? d->qvel : f == @F_XPOS@ ? d->xpos
-                      : f == @F_XQUAT@ ? d->xquat : f == @F_XMAT@ ? d->xmat : f == @F_CVEL@ ? d->cvel
-                      : f == @F_SENSOR@ ? d->sensordata : f == @F_SITE_XMAT@ ? d->site_xmat
-                      : (const mjtNum*)(uintptr_t)row[@PEAK@];
-    memcpy(out, src + start, sizeof(mjtNum) * n);
-    out += n;
-  }
-}
-
-/* worlds[0..count): rows of the handle table h (stride HANDLE_COLUMNS); theta: count x 4 motor references in
-   the order of worlds; ctrl_idx: the 4 ctrl addresses (the same layout in every world); status: count
-   results; step_seconds: NULL, or count accumulators of the thread CPU time inside mj_step; plan/out: NULL,
-   or the gather plan and count rows of out_cols doubles, written for the worlds whose status is OK (what the
-   environment reads after the step, copied here on the world's thread instead of world by world in Python).
-   Returns the number of worlds whose status is not OK. */
-extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int count, const double* theta,
-                               const int32_t* ctrl_idx, int nstep, int sync, int32_t* status,
-                               double* step_seconds, const int32_t* plan, int nplan, double* out,
-                               int out_cols) {
-  volatile int nbad = 0;
-  jmp_buf jump;
-  mjfLogHandler previous = _mjPRIVATE_setTlsLogHandler(on_log);
-  for (volatile int k = 0; k < count; k++) {
-    const uint64_t* row = h + (int64_t)worlds[k] * @COLUMNS@;
-    mjModel* m = (mjModel*)(uintptr_t)row[@MODEL@];
-    mjData* d = (mjData*)(uintptr_t)row[@DATA@];
-    status[k] = @OK@;
-    tls_jump = &jump;
-    if (setjmp(jump)) {  /* MuJoCo raised an error in this world: its state is undefined, reported */
-      status[k] = @MUJOCO_ERROR@;
-      nbad++;
-      continue;
-    }
-    {
-      for (int j = 0; j < 4; j++) d->ctrl[ctrl_idx[j]] = theta[4 * k + j];
-      *(mjtNum*)(uintptr_t)row[@PEAK@] = 0;
-      if (row[@METER@]) memset((void*)(uintptr_t)row[@METER@], 0, sizeof(mjtNum) * row[@METER_SIZE@]);
-      double t0 = step_seconds ? thread_seconds() : 0.0;
-      for (int s = 0; s < nstep; s++) mj_step(m, d);
-      if (step_seconds) step_seconds[k] += thread_seconds() - t0;
-      if (d->warning[mjWARN_BADQACC].number || d->warning[mjWARN_BADQPOS].number ||
-          d->warning[mjWARN_BADQVEL].number) {
-        status[k] = @DIVERGED@;
-        nbad++;
-        continue;
-      }
-      if (sync == @SYNC_KINEMATICS@) {
-        mj_kinematics(m, d);
-        mj_comPos(m, d);
-        mj_comVel(m, d);
-      } else if (sync == @SYNC_FORWARD@) {
-        m->opt.disableflags &= ~mjDSBL_SENSOR;
-        mj_forward(m, d);
-        m->opt.disableflags |= mjDSBL_SENSOR;
-      }
-      if (out) gather(d, row, plan, nplan, out + (int64_t)k * out_cols);
-    }
-  }
-  tls_jump = NULL;
-  _mjPRIVATE_setTlsLogHandler(previous);
-  return nbad;
-}
-
-/* A pool of threads that runs one batch's chunks (positions bounds[c]..bounds[c+1] of worlds), claimed in
-   order of c, without Python. The caller submits, then works on the finished chunks (their rewards and
-   observations, in Python) and, when none is finished, steps an unclaimed chunk itself (run_one) or waits:
-   every call is a ctypes call, so the caller holds no GIL meanwhile, and caller + pool threads = the cores.
-   Only chunks below ``released`` may be claimed: the caller can submit the first chunks while it still
-   computes the motor references of the others, then release those (the lock orders its writes to theta
-   before any thread's reads). One job at a time: the caller waits for all released chunks before the next
-   submit. */
-struct Job {
-  const uint64_t* h; const int32_t* worlds; const double* theta; const int32_t* ctrl_idx;
-  int nstep, sync; int32_t* status; double* seconds; const int32_t* bounds; int nchunks, released;
-  const int32_t* plan; int nplan; double* out; int out_cols;
-};
-
-struct Pool {
-  std::vector<std::thread> threads;
-  std::mutex mu;
-  std::condition_variable work, done_cv;
-  Job job{};
-  int next = 0, ndone = 0;
-  bool stop = false;
-  std::vector<char> done;
-
-  /* runs chunk c (claimed under the lock, which lk holds on entry and on return) */
-  void run_chunk(std::unique_lock<std::mutex>& lk, int c) {
-    Job j = job;
-    lk.unlock();
-    int lo = j.bounds[c], hi = j.bounds[c + 1];
-    vswrist_advance(j.h, j.worlds + lo, hi - lo, j.theta + 4 * lo, j.ctrl_idx, j.nstep, j.sync, j.status + lo,
-                    j.seconds ? j.seconds + lo : NULL, j.plan, j.nplan,
-                    j.out ? j.out + (int64_t)lo * j.out_cols : NULL, j.out_cols);
-    lk.lock();
-    done[c] = 1;
-    ndone++;
-    done_cv.notify_all();
-  }
-
-  void run() {
-    std::unique_lock<std::mutex> lk(mu);
-    for (;;) {
-      work.wait(lk, [&] { return stop || next < job.released; });
-      if (stop) return;
-      run_chunk(lk, next++);
-    }
-  }
-};
-
-extern "C" void* vswrist_pool_new(int nthreads) {
-  Pool* p = new Pool();
-  for (int i = 0; i < nthreads; i++) p->threads.emplace_back([p] { p->run(); });
-  return p;
-}
-
-extern "C" void vswrist_pool_free(void* pool) {
-  Pool* p = (Pool*)pool;
-  {
-    std::lock_guard<std::mutex> lk(p->mu);
-    p->stop = true;
-  }
-  p->work.notify_all();
-  for (auto& t : p->threads) t.join();
-  delete p;
-}
-
-extern "C" void vswrist_pool_submit(void* pool, const uint64_t* h, const int32_t* worlds, const double* theta,
-                                    const int32_t* ctrl_idx, int nstep, int sync, int32_t* status,
-                                    double* seconds, const int32_t* bounds, int nchunks, int released,
-                                    const int32_t* plan, int nplan, double* out, int out_cols) {
-  Pool* p = (Pool*)pool;
-  {
-    std::lock_guard<std::mutex> lk(p->mu);
-    p->job = Job{h, worlds, theta, ctrl_idx, nstep, sync, status, seconds, bounds, nchunks,
-                 released < nchunks ? released : nchunks, plan, nplan, out, out_cols};
-    p->next = 0;
-    p->ndone = 0;
-    p->done.assign(nchunks, 0);
-  }
-  p->work.notify_all();
-}
-
-/* Lets chunks below upto be claimed. */
-extern "C" void vswrist_pool_release(void* pool, int upto) {
-  Pool* p = (Pool*)pool;
-  {
-    std::lock_guard<std::mutex> lk(p->mu);
-    if (upto > p->job.nchunks) upto = p->job.nchunks;
-    if (upto > p->job.released) p->job.released = upto;
-  }
-  p->work.notify_all();
-}
-
-/* Claims the next unclaimed released chunk and runs it on the calling thread, unless no more than ``keep``
-   are left unclaimed (those stay for the pool's threads); returns it, or -1. */
-extern "C" int vswrist_pool_run_one(void* pool, int keep) {
-  Pool* p = (Pool*)pool;
-  std::unique_lock<std::mutex> lk(p->mu);
-  if (p->next >= p->job.released - (keep > 0 ? keep : 0)) return -1;
-  int c = p->next++;
-  p->run_chunk(lk, c);
-  return c;
-}
-
-/* Copies the chunks' done flags into out (nchunks bytes); returns how many are done. */
-extern "C" int vswrist_pool_ready(void* pool, char* out) {
-  Pool* p = (Pool*)pool;
-  std::lock_guard<std::mutex> lk(p->mu);
-  memcpy(out, p->done.data(), p->done.size());
-  return p->ndone;
-}
-
-/* Blocks until chunk c is done (c < 0: every released chunk; one never released is never run). */
-extern "C" void vswrist_pool_wait(void* pool, int c) {
-  Pool* p = (Pool*)pool;
-  std::unique_lock<std::mutex> lk(p->mu);
-  if (c < 0)
-    p->done_cv.wait(lk, [&] { return p->ndone == p->job.released; });
-  else
-    p->done_cv.wait(lk, [&] { return p->done[c] != 0; });
-}
-"""
-for _key, _value in {"COLUMNS": HANDLE_COLUMNS, "MODEL": H_MODEL, "DATA": H_DATA, "PEAK": H_PEAK, "METER": H_METER,
-                     "METER_SIZE": H_METER_SIZE, "OK": OK, "DIVERGED": DIVERGED, "MUJOCO_ERROR": MUJOCO_ERROR,
-                     "SYNC_KINEMATICS": SYNC_KINEMATICS, "SYNC_FORWARD": SYNC_FORWARD, "F_QPOS": F_QPOS,
-                     "F_QVEL": F_QVEL, "F_XPOS": F_XPOS, "F_XQUAT": F_XQUAT, "F_XMAT": F_XMAT, "F_CVEL": F_CVEL,
-                     "F_SENSOR": F_SENSOR, "F_SITE_XMAT": F_SITE_XMAT}.items():
-    SOURCE = SOURCE.replace(f"@{_key}@", str(_value))
 
 _lib = None  # the loaded library's function, False where it cannot be built
 
 
 def compile_library() -> Path:
     """Compile the library (once; atomically, safe with parallel processes) and return its path."""
-    return build_library(SOURCE, "vswrist_advance", ".cc", ("CXX", "g++", "c++", "clang++"), ["-pthread"])
+    return build_library(SOURCE, "vswrist_advance", ("CXX", "g++", "c++", "clang++"), ["-pthread"],
+                         advance_defines())
 
 
 def load():

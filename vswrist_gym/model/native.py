@@ -9,8 +9,9 @@ MuJoCo program that has loaded the plugin library (``load_plugin()``, ``mujoco.m
 no other model in the process is touched. All mutable state lives in each ``mjData`` (``plugin_data``,
 ``plugin_state``), none in the library, so separate ``mjData`` may step on separate threads.
 
-The C source (``plugin_lib``) is compiled once per MuJoCo version with the system C compiler against the
-headers and library shipped in the ``mujoco`` wheel, into a user cache directory (nothing is downloaded).
+The C source (``csrc/vswrist_plugin.c``, built by ``plugin_lib``) is compiled with the system C compiler against
+the headers and library shipped in the ``mujoco`` wheel, into a user cache directory (nothing is downloaded),
+once per source, flags, compiler and MuJoCo installation (``plugin_lib.library_key``).
 
 Fallback (no compiler, or ``VSWRIST_NATIVE=0``): the same physics as MuJoCo's process-global callbacks
 ``mjcb_passive`` / ``mjcb_act_dyn`` written in Python (correct, several times slower), reading each model's
