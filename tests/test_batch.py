@@ -45,7 +45,7 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, la
     cfg = {"episode_s": 0.25 if env_id == "VSWrist/Hammer-v0" else 0.5,
            "randomize": {"latency": {"enabled": latency}}}
     for seed in (2, 9):
-        venv = make_batch(env_id, config=cfg, threads=2, array_step=True)  # the array step, though N is small
+        venv = make_batch(env_id, config=cfg, threads=2)
         if not latency:
             from vswrist_gym.model import advance_lib
 
@@ -345,18 +345,16 @@ def _same_vector_info(a: dict, b: dict, where: str) -> None:
     ("VSWrist/Insertion-v0", {"action_mode": "posture_compliance"}),
 ])
 @pytest.mark.parametrize("threads", [1, 2])
-def test_array_step_equals_the_world_by_world_step(env_id, cfg, threads):
-    """The array step against the single env's phases run world by world (what a batch below
-    ARRAY_MIN_WORLDS does by default), in the modes and settings the equivalence test above leaves out:
-    dict observations, residual mode with gravity compensation, per-world spring models, motor and compliance
-    modes, SAME_STEP autoresets and a divergence. On 2 threads the array step's worlds are finished chunk by
-    chunk while other chunks step, and the worlds a chunk ended begin their resets early."""
-    from vswrist_gym.envs.batch import ARRAY_MIN_WORLDS
-
+def test_the_batch_equals_gymnasiums_vector_env_of_single_envs(env_id, cfg, threads):
+    """The batch against Gymnasium's own ``SyncVectorEnv`` over single envs (world i seeded s + i there too), in
+    the modes and settings the equivalence test above leaves out: dict observations, residual mode with gravity
+    compensation, per-world spring models, motor and compliance modes, SAME_STEP autoresets (final observations
+    and infos) and a divergence. On 2 threads the batch's worlds are finished chunk by chunk while other chunks
+    step, and the worlds a chunk ended begin their resets early."""
     cfg = dict(cfg, episode_s=0.2)
-    kw = dict(config=cfg, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
-    fast, slow = make_batch(env_id, array_step=True, threads=threads, **kw), make_batch(env_id, threads=1, **kw)
-    assert N < ARRAY_MIN_WORLDS and not slow.unwrapped.array_step
+    mode = gym.vector.AutoresetMode.SAME_STEP
+    fast = make_batch(env_id, threads=threads, config=cfg, autoreset_mode=mode)
+    slow = gym.vector.SyncVectorEnv([lambda: gym.make(env_id, config=cfg) for _ in range(N)], autoreset_mode=mode)
     out_f = _step_twins(fast, slow, seed=7, rng_seed=0, diverge=(2, 12))
     assert out_f[2][2] and out_f[4]["final_info"]["simulation_error"][2]
 
@@ -373,7 +371,7 @@ def _step_twins(a, b, seed: int, rng_seed: int, diverge: tuple[int, int], steps:
         acts = rng.uniform(-1, 1, a.action_space.shape)
         if t == diverge[1]:
             for venv in (a, b):
-                venv.unwrapped.envs[diverge[0]].data.qvel[:] = 1e12
+                venv.unwrapped.envs[diverge[0]].unwrapped.data.qvel[:] = 1e12
         out_a, out_b = a.step(acts), b.step(acts)
         for x, y in zip(out_a[:4], out_b[:4]):
             if isinstance(x, dict):
@@ -389,15 +387,17 @@ def _step_twins(a, b, seed: int, rng_seed: int, diverge: tuple[int, int], steps:
     return at_divergence
 
 
-def test_sb3_adapter_infos_are_the_same_on_both_steps():
-    """SB3's adapter reads one info dict per world (``step_worlds``): the array step builds them from its
-    arrays; they must be the single env's dicts, terminal observations and time-limit flags included."""
+def test_sb3_adapter_infos_are_sb3s_own():
+    """SB3's adapter reads one info dict per world (``step_worlds``), which the batch builds from its arrays:
+    they must be the dicts SB3's own ``DummyVecEnv`` over single envs gives, terminal observations and time-limit
+    flags included."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
     from vswrist_gym.agents.vec_env import BatchVecEnv
 
     cfg = {"episode_s": 0.1}
-    fast = BatchVecEnv("VSWrist/Drill-v0", 3, env_kwargs={"config": cfg, "array_step": True}, threads=1)
-    slow = BatchVecEnv("VSWrist/Drill-v0", 3, env_kwargs={"config": cfg, "array_step": False}, threads=1)
-    assert fast.venv.array_step and not slow.venv.array_step
+    fast = BatchVecEnv("VSWrist/Drill-v0", 3, env_kwargs={"config": cfg}, threads=1)
+    slow = DummyVecEnv([lambda: gym.make("VSWrist/Drill-v0", config=cfg) for _ in range(3)])
     for v in (fast, slow):
         v.seed(3)
         v.reset()
@@ -422,7 +422,9 @@ def test_sb3_adapter_infos_are_the_same_on_both_steps():
     slow.close()
 
 
-def test_a_task_overriding_a_step_method_is_stepped_world_by_world(monkeypatch):
+def test_a_task_overriding_a_step_method_is_refused(monkeypatch):
+    """The batch computes the step methods over arrays, so it would not run a task's override of one: it refuses
+    to make such a batch, naming the method, rather than step without it."""
     from vswrist_gym.envs.base import VSWristEnv
     from vswrist_gym.envs.load_hold import LoadHoldEnv
 
@@ -430,12 +432,8 @@ def test_a_task_overriding_a_step_method_is_stepped_world_by_world(monkeypatch):
         return dict(VSWristEnv._info(self, weighted, final, err), extra_metric=1.5)
 
     monkeypatch.setattr(LoadHoldEnv, "_info", _info, raising=False)
-    venv = make_batch("VSWrist/LoadHold-v0", n=8)
-    assert not venv.unwrapped.array_step  # the array step would skip the override
-    venv.reset(seed=0)
-    _, _, _, _, info = venv.step(np.zeros(venv.action_space.shape))
-    assert info["_extra_metric"].all() and (info["extra_metric"] == 1.5).all()
-    venv.close()
+    with pytest.raises(TypeError, match="LoadHoldEnv overrides _info: "):
+        make_batch("VSWrist/LoadHold-v0", n=8)
 
 
 @pytest.mark.parametrize("env_id", ["VSWrist/LoadHold-v0", "VSWrist/Polish-v1"])
@@ -444,19 +442,18 @@ def test_threads_and_chunks_give_the_one_thread_numbers(env_id, mode):
     """8 worlds on 2 threads (2 chunks of 4: the caller finishes one chunk while the other steps, and resets
     settle on the pool) against the same batch on one thread, through autoresets and a divergence."""
     cfg = {"episode_s": 0.2}
-    one, two = (make_batch(env_id, n=8, config=cfg, threads=t, array_step=True, autoreset_mode=mode) for t in (1, 2))
+    one, two = (make_batch(env_id, n=8, config=cfg, threads=t, autoreset_mode=mode) for t in (1, 2))
     assert two.unwrapped.threads == 2
     out = _step_twins(two, one, seed=11, rng_seed=3, diverge=(5, 7))
     assert out[2][5]  # the diverged world ended its episode
 
 
 def test_many_chunks_on_two_threads_give_the_one_thread_numbers():
-    """32 worlds on 2 threads: 8 chunks of 4. The first chunk begins world by world (the single env's phase)
-    and steps while the other 28 begin over arrays; the caller steps chunks, keeps the last for the pool
-    thread, and finishes the rest in few calls, whose small groups compute the ``stiffness`` term world by
-    world: against one thread, where every phase is one array call over the 32."""
+    """32 worlds on 2 threads: 8 chunks of 4. The first chunk begins and steps while the other 28 begin; the
+    caller steps chunks, keeps the last for the pool thread, and finishes the rest in few calls of a few worlds
+    each: against one thread, where every phase is one array call over the 32."""
     cfg = {"episode_s": 0.2}
-    one, two = (make_batch("VSWrist/LoadHold-v0", n=32, config=cfg, threads=t, array_step=True) for t in (1, 2))
+    one, two = (make_batch("VSWrist/LoadHold-v0", n=32, config=cfg, threads=t) for t in (1, 2))
     assert "stiffness" in two.unwrapped.envs[0].obs_slices
     out = _step_twins(two, one, seed=5, rng_seed=8, diverge=(30, 4), steps=16)
     assert out[2][30]
@@ -467,7 +464,7 @@ def test_a_task_error_after_the_first_chunks_stepped_needs_a_reset():
     raise there, the batch refuses to step on from that half-stepped state until it is reset."""
     from gymnasium.error import ResetNeeded
 
-    venv = make_batch("VSWrist/Drill-v0", n=16, threads=2, array_step=True)
+    venv = make_batch("VSWrist/Drill-v0", n=16, threads=2)
     venv.reset(seed=0)
     world = venv.unwrapped.envs[12]  # in a later chunk
 

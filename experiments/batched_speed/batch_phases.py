@@ -1,6 +1,6 @@
 """Where a batch's step goes: calls per step and milliseconds per step of each phase of
 ``VSWristVectorEnv`` (wall time), and the cost of the ``stiffness`` observation term over arrays against world by
-world (the reason for ``batch.SCALAR_STIFFNESS_BELOW``).
+world (the array term's cost per call is what a batch of few worlds pays for it).
 
     python experiments/batched_speed/batch_phases.py [--task Drill] [--threads 1 2] [--worlds 32] [--steps 300]
 
@@ -48,7 +48,7 @@ def timed_phases() -> dict:
 
 def stiffness_costs(env_id: str, n: int = 4, number: int = 500) -> tuple[float, float]:
     """(us per call of the array term for ``n`` worlds, us per world of the single env's term)."""
-    v = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", threads=1, array_step=True)
+    v = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", threads=1)
     v.reset(seed=0)
     venv, worlds = v.unwrapped, v.unwrapped.envs
     first = worlds[0]

@@ -36,10 +36,10 @@ works per world). One ``step`` of the batch:
    over arrays, each with the single env's operations in the single env's order, so world i of a batch is the
    single env with seed s + i (to the bit on one machine: ``tests/test_batch.py`` checks 1e-9).
 
-Steps 3 and 5 are ``VSWristEnv._begin_step``/``_finish_step`` written over arrays (the "array step"); a batch
-of fewer than ``ARRAY_MIN_WORLDS`` worlds (where the array calls' fixed cost outweighs the Python they save), a
-task that overrides one of ``STEP_METHODS``, or ``array_step=False`` runs those two methods world by world
-instead. The single env keeps its scalar step (``gym.make``): the same numbers, and faster for one world.
+Steps 3 and 5 are ``VSWristEnv._begin_step``/``_finish_step`` written over arrays (the "array step"), for every
+batch, one world or many; a task may change the step through its hooks, not by overriding one of the
+``STEP_METHODS`` the array step implements (such a task is refused when its batch is made). The single env
+keeps its scalar step (``gym.make``): the same numbers, and faster for one world.
 
 Seeding follows Gymnasium: ``reset(seed=s)`` seeds world i with ``s + i`` (a list gives one seed per world), so
 world i replays ``gym.make(id).reset(seed=s + i)`` step for step (``tests/test_batch.py``).
@@ -67,20 +67,15 @@ from .base import VSWristEnv
 from .rewards import wrap_angle
 from .shared import PeriodMeanForce
 
-ARRAY_MIN_WORLDS = 6  # see VSWristVectorEnv.array_step
-# below this many worlds, ``_finish`` computes the ``stiffness`` observation term world by world: the array
-# kinematics (``AnalyticController.posture_kinematics_batch``) cost about 100 us per call whatever the count,
-# the single env's term about 9 us per world (``python experiments/batched_speed/batch_phases.py`` prints both;
-# 94-111 and 9.2 us on the dev machine, 2026-12-03)
-SCALAR_STIFFNESS_BELOW = 12
 # chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
 # MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and shorten the last chunk, whose
 # ``_finish`` no physics overlaps; fewer make the first chunk, whose ``_begin`` no physics overlaps, longer to
 # compute beside
 CHUNKS_PER_THREAD = 4
 MIN_CHUNK_WORLDS = 4
-# the single env's step methods that the array step computes over arrays (a task overriding one is stepped world
-# by world); the hooks it calls per world, or over arrays (``_tracking_error``), stay the task's
+# the single env's step methods that the array step computes over arrays (a batch of a task overriding one is
+# refused: the batch would not run the override); the hooks it calls per world, or over arrays
+# (``_tracking_error``), stay the task's
 STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
                 "_raw_observation", "_draw_noise", "_obs_posture", "_obs_posture_rate", "_obs_contact",
                 "_obs_spring_torques", "_obs_stiffness", "_obs_terms")
@@ -145,18 +140,22 @@ class VSWristVectorEnv(VectorEnv):
     SAME_STEP (the reset observation is returned at once, the last one in ``info["final_obs"]``) or DISABLED
     (a world that ended stays ended until ``reset(options={"reset_mask": mask})`` restarts it; stepping it
     before raises). After ``close()``, ``step`` and ``reset`` raise ``ClosedEnvironmentError``.
-    ``array_step``: compute the step's common work over arrays (default: with ``ARRAY_MIN_WORLDS`` worlds or
-    more) or world by world through the single env's phases; both give the same numbers.
     """
 
     def __init__(self, env_id: str, num_envs: int = 1, render_mode: str | None = None,
                  config: Mapping[str, Any] | None = None, threads: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, max_episode_steps: int | None = None,
-                 array_step: bool | None = None, **overrides: Any):
+                 **overrides: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.autoreset_mode = AutoresetMode(autoreset_mode)
         cls = _env_class(env_id)
+        overridden = [m for m in STEP_METHODS if getattr(cls, m) is not getattr(VSWristEnv, m)]
+        if overridden:
+            raise TypeError(f"{cls.__name__} overrides {', '.join(overridden)}: a batch steps the base class's "
+                            f"step methods over arrays and would not run the override; change the step through "
+                            f"the task hooks (_before_physics, _contact_force, _task_reward_terms, _task_info, "
+                            f"task observation terms) instead")
         self.env_id = env_id
         self.num_envs = int(num_envs)
         spec = gym.registry[env_id]
@@ -195,13 +194,6 @@ class VSWristVectorEnv(VectorEnv):
         own = {t.name for t in first._task_obs_terms()}  # a task's own term of a base term's name is its own
         self._array_terms = [x for x in spans if x[2] in ARRAY_TERMS and x[2] not in own]
         self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS or x[2] in own]
-        # The array step implements the base class's step methods; a task that overrides one of them (rather
-        # than a hook) is stepped world by world, so that its override runs.
-        overridden = [m for m in STEP_METHODS if getattr(cls, m) is not getattr(VSWristEnv, m)]
-        # below ARRAY_MIN_WORLDS worlds the fixed cost of the array calls outweighs the per-world Python they
-        # replace: such batches step world by world through the single env's phases (the same numbers)
-        self.array_step = (self.num_envs >= ARRAY_MIN_WORLDS if array_step is None else bool(array_step)) \
-            and not overridden
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         # The compiled advance (``model.advance_lib``): one GIL-free call per chunk of worlds, for tasks whose
@@ -339,10 +331,9 @@ class VSWristVectorEnv(VectorEnv):
             else:
                 raise mujoco.FatalError(f"env {i}: MuJoCo raised an error inside this world's physics step")
 
-    def _native_step(self, worlds: list, idx: list, acts: np.ndarray, per_world: bool, started: dict | None = None,
-                     meanwhile=None):
+    def _native_step(self, worlds: list, idx: list, acts: np.ndarray, started: dict | None = None, meanwhile=None):
         """The array step's ``_begin`` and the physics of the live worlds through the compiled advance
-        (``acts``: their checked actions; with ``per_world`` the worlds have begun their step already). On one
+        (``acts``: their checked actions). On one
         thread: ``_begin``, one call, ``_finish``. On ``threads`` threads: up to ``CHUNKS_PER_THREAD`` x threads
         chunks of worlds, stepped by the library's ``threads - 1`` threads and by this one:
 
@@ -358,7 +349,7 @@ class VSWristVectorEnv(VectorEnv):
           small calls would pay many times over.
 
         Each world's numbers depend on that world only, so the chunks' results are joined in world order.
-        Returns ``_finish``'s results for the array step, None world by world (the caller finishes each).
+        Returns ``_finish``'s results.
         ``started``: with SAME_STEP autoresets, the resets begun (``_start_resets``) of the worlds a finished
         chunk ended, whose settling then runs beside the physics still to come. ``meanwhile()``: Python to run
         while the physics starts (the worlds that reset at this step)."""
@@ -366,8 +357,8 @@ class VSWristVectorEnv(VectorEnv):
         widx = np.asarray(idx, dtype=np.int32)
         status = np.zeros(L, dtype=np.int32)
         seconds = None if self.physics_seconds is None else np.zeros(L)
-        G = None if per_world else np.empty((L, self._gather_width))  # the gather (``_gather_plan``)
-        plan = None if per_world else self._plan
+        G = np.empty((L, self._gather_width))  # the gather (``_gather_plan``)
+        plan = self._plan
         lib = self._advance_fn
         parts: list = []  # (positions in idx, _finish's results for those worlds)
         A = None  # the clipped actions, once ``_begin`` has run for every world
@@ -375,8 +366,6 @@ class VSWristVectorEnv(VectorEnv):
         def finish(pos: list) -> None:
             ws = [worlds[p] for p in pos]
             self._after_native(ws, [idx[p] for p in pos], status[pos])
-            if per_world:
-                return
             part = self._finish(ws, A[pos], G[pos])
             parts.append((pos, part))
             if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
@@ -385,8 +374,6 @@ class VSWristVectorEnv(VectorEnv):
         def begin(lo: int, hi: int) -> tuple[np.ndarray | None, np.ndarray]:
             """``_begin`` of live worlds lo..hi-1: their clipped actions and motor references (hi - lo, 4)."""
             ws, ids = worlds[lo:hi], idx[lo:hi]
-            if per_world:
-                return None, self._motor_matrix(ws, ids, None)
             a, theta = self._begin(ws, acts[lo:hi])
             return a, self._motor_matrix(ws, ids, theta)
 
@@ -418,7 +405,7 @@ class VSWristVectorEnv(VectorEnv):
                 except BaseException:
                     self._started = False  # the first chunks stepped, the others did not: reset() first
                     raise
-                A = None if per_world else np.concatenate([A1, A2])
+                A = np.concatenate([A1, A2])
                 pool.release()
                 # the last unclaimed chunk of each pool thread stays for it, so that the first _finish (most of
                 # the worlds) runs beside physics
@@ -437,8 +424,6 @@ class VSWristVectorEnv(VectorEnv):
                 pool.wait()  # no thread touches a world after we return
         if seconds is not None:
             self.physics_seconds += float(seconds.sum())
-        if per_world:
-            return None
         if len(parts) == 1:
             return parts[0][1]
         order = np.concatenate([np.asarray(pos) for pos, _ in parts])
@@ -559,16 +544,12 @@ class VSWristVectorEnv(VectorEnv):
         native = bool(worlds) and self._native_ready(idx)
         if not native:
             self._start_resets(reset_now, started)
-        per_world = not self.array_step
-        if per_world:  # the single env's phases, world by world
-            for e, i in zip(worlds, idx):
-                e._begin_step(acts[i])
-        A = theta = None
-        if worlds and not per_world and not native:
+        A = None
+        if worlds and not native:
             A, theta = self._begin(worlds, acts[idx])
         finished = None
         if native:  # the array step's _begin, then the physics, beside which the resets begin
-            finished = self._native_step(worlds, idx, acts[idx], per_world, started if same_step else None,
+            finished = self._native_step(worlds, idx, acts[idx], started if same_step else None,
                                          lambda: self._start_resets(reset_now, started))
         else:
             self._physics(live)
@@ -579,11 +560,7 @@ class VSWristVectorEnv(VectorEnv):
         rows: dict[int, dict] = {}
         extras: dict[int, dict] = {}
         cols: dict[str, np.ndarray] = {}
-        if per_world:
-            for e, i in zip(worlds, idx):
-                o, rew[i], term[i], trunc[i], rows[i] = e._finish_step()
-                obs[i] = self._flat(o)
-        elif worlds:
+        if worlds:
             o, r, te, tr, cols, failures = finished if finished is not None else self._finish(worlds, A)
             obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
             for k, msg in failures.items():
@@ -597,12 +574,9 @@ class VSWristVectorEnv(VectorEnv):
                 self._start_resets([i for i in done if i not in started], started)
                 pos = {i: k for k, i in enumerate(idx)}
                 for i in done:
-                    if per_world:
-                        final_info = rows[i]
-                    else:
-                        k = pos[i]
-                        final_info = {key: (v[k].item() if v.ndim == 1 else v[k]) for key, v in cols.items()}
-                        final_info.update(extras.pop(i, {}))
+                    k = pos[i]
+                    final_info = {key: (v[k].item() if v.ndim == 1 else v[k]) for key, v in cols.items()}
+                    final_info.update(extras.pop(i, {}))
                     final_obs = self._unflat(obs[i].copy())
                     o, info = self._end_reset(i, started)
                     obs[i] = self._flat(o)
@@ -620,10 +594,6 @@ class VSWristVectorEnv(VectorEnv):
         motor references (L, 4) where the controller computed them over arrays (else None)."""
         A = np.maximum(acts, -1.0)
         np.minimum(A, 1.0, out=A)
-        if len(worlds) < ARRAY_MIN_WORLDS:  # few worlds (a first chunk): the array calls' fixed cost outweighs
-            for e, a in zip(worlds, acts):  # the single env's phase, world by world (the same numbers)
-                e._begin_step(a)
-            return A, None
         first = worlds[0]
         mode = self._mode
         if mode in ("posture_stiffness", "residual"):
@@ -798,10 +768,7 @@ class VSWristVectorEnv(VectorEnv):
             elif name == "spring_torques":
                 raw[:, a:b] = spring_torque(D, law)
             elif name == "stiffness":
-                if L < SCALAR_STIFFNESS_BELOW:  # the single env's term, world by world (the same numbers)
-                    raw[:, a:b] = [e._obs_stiffness() for e in worlds]
-                else:
-                    raw[:, a:b] = self._coupler_stiffness(first, P, D, law)
+                raw[:, a:b] = self._coupler_stiffness(first, P, D, law)
             elif name == "lam":
                 raw[:, a] = lam
             elif name == "prev_action":
@@ -827,7 +794,8 @@ class VSWristVectorEnv(VectorEnv):
         for k in np.flatnonzero(time_up & ~cut).tolist():
             success[k] = bool(worlds[k]._success())
         cols.update(
-            posture_error=np.sqrt(_row_sum_sq(err)),
+            posture_error=np.sqrt([e @ e for e in err]),  # ``_info``'s dot product, world by world (BLAS's
+            # order and rounding, which an in-order sum of squares may miss by an ulp)
             contact_force=contact_a,
             peak_contact_force=np.array(peak),
             rms_contact_force=np.sqrt(np.array(sumsq) / np.maximum(steps, 1)),

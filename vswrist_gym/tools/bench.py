@@ -329,38 +329,6 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[
     return one / many, floor
 
 
-def bench_array_step(name: str, n: int, steps: int, repeats: int) -> dict:
-    """us per world-step (CPU time, one thread) of a batch of ``n`` worlds through the array step and through
-    the single env's phases world by world (``VSWristVectorEnv.array_step``), interleaved run by run on the
-    same actions: where the array calls' fixed cost per batch pays off (``batch.ARRAY_MIN_WORLDS``)."""
-    import gymnasium as gym
-
-    import vswrist_gym  # noqa: F401
-
-    envs = {mode: gym.make_vec(LATEST[name], num_envs=n, vectorization_mode="vector_entry_point", threads=1,
-                               array_step=mode == "array") for mode in ("array", "world")}
-    rng = np.random.default_rng(0)
-    n_vec = max(steps // n, 10)
-    acts = rng.uniform(-1, 1, (n_vec, n) + envs["array"].single_action_space.shape).astype(np.float32)
-    res: dict[str, list] = {"array": [], "world": []}
-
-    def run(mode: str) -> float:
-        venv = envs[mode]
-        venv.reset(seed=0)
-        t0 = _clock()
-        for a in acts:
-            venv.step(a)
-        return 1e6 * (_clock() - t0) / (n * n_vec)
-
-    run("array"), run("world")  # warm-up
-    for _ in range(repeats):
-        for mode in res:
-            res[mode].append(run(mode))
-    for venv in envs.values():
-        venv.close()
-    return {"task": name, "n": n, **{f"{k}_us": statistics.median(v) for k, v in res.items()}}
-
-
 def bench_memory(name: str, n: int) -> dict:
     """Resident memory (MiB) of ``n`` worlds, in a fresh interpreter: after reset and 10 steps, minus the
     interpreter with everything imported."""
@@ -402,9 +370,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--memory", type=int, default=0, metavar="N",
                     help="also the resident memory of N worlds of the heaviest task (Insertion), e.g. 256, in a "
                          "fresh interpreter (with or without --batch)")
-    ap.add_argument("--array-step", action="store_true",
-                    help="also the batch's array step against its world-by-world step at N = 1 ... 32 worlds "
-                         "(one thread, CPU time)")
     ap.add_argument("--json", metavar="PATH", help="write the results as JSON")
     args = ap.parse_args(argv)
     if args.steps < 10 or args.repeats < 1:
@@ -467,19 +432,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{'':<26}{name:<12}{v['workers_1']:>10.0f}{v['workers_2']:>11.0f}{v['scaling_2_over_1']:>9.2f}")
     if args.batch or args.memory:
         _batched(args, results, cpu)
-    if args.array_step:
-        if cpu is not None:
-            os.sched_setaffinity(0, {cpu})
-        results["array_step"] = []
-        print("\nthe batch's array step against its world-by-world step (us per world-step, one thread, CPU time, "
-              "pinned)")
-        print(f"{'task':<12}{'N':>4}{'array us':>10}{'world us':>10}{'array/world':>12}")
-        for name in args.tasks:
-            for n in (1, 2, 4, 8, 16, 32):
-                r = bench_array_step(name, n, args.steps, args.repeats)
-                results["array_step"].append(r)
-                print(f"{name:<12}{n:>4}{r['array_us']:>10.0f}{r['world_us']:>10.0f}"
-                      f"{r['array_us'] / r['world_us']:>12.2f}", flush=True)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(results, fh, indent=2)
