@@ -3,7 +3,7 @@
 ``python -m vswrist_gym.identify [--out DIR] [--quick]`` (or ``vswrist reproduce --identify --out DIR``)
 fits the parameters the paper leaves open and the preset chose (motor low-pass time constant, speed limit,
 position-loop gain, leg joint damping) to the paper's RMS posture errors and elastic torques of the LS and HS
-trials, under the load the paper's numbers imply (``tools.reproduce.implied_load_scenario``: 0.015 N m about the
+trials, under the load the paper's numbers imply (``paper_trial.implied_load_scenario``: 0.015 N m about the
 centre). Everything the paper gives stays as given.
 
 * Residuals: log(ours / paper) for the four numbers, equal weights (the target "within 1.5x" is symmetric in
@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from .params import WristParams, load_params
-from .tools.reproduce import (HS_PER_LEG, IMPLIED_LOAD_TORQUE, PAPER, implied_load_scenario, implied_load_setup,
-                        per_leg_to_lambda, trial)
+from .paper_trial import (HS_PER_LEG, IMPLIED_LOAD_TORQUE, PAPER, implied_load_scenario, implied_load_setup,
+                          per_leg_to_lambda, trial)
 
 KEYS = ("rms_error_ls", "rms_error_hs", "rms_torque_ls", "rms_torque_hs")
 UNITS = {"rms_error_ls": "rad", "rms_error_hs": "rad", "rms_torque_ls": "N m", "rms_torque_hs": "N m"}
