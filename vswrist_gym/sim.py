@@ -33,8 +33,8 @@ import numpy as np
 
 from .kinematics import LEG_NAMES, RangeOfMotionError, WristKinematics
 from .model import native
-from .model.builder import CLOSURE_TAG, SceneFn, build_model
-from .model.native import weld_violation
+from .model.builder import SceneFn, build_model
+from .model.native import CLOSURE_TAG, weld_violation
 from .params import WristParams, load_params
 from .stiffness import PostureTerms, lambda_range, motor_references
 

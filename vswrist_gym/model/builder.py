@@ -47,13 +47,9 @@ import numpy as np
 
 from ..kinematics import LEG_NAMES, WristKinematics, rot_x, rot_z
 from ..params import WristParams, load_params
+from . import native
+from .native import CLOSURE_FIELDS, CLOSURE_TAG, MOTOR_TAG, SPRING_FIELDS, SPRING_TAG  # noqa: F401
 from .plugin_lib import CLOSURE_PLUGIN, DRIVE_PLUGIN
-
-SPRING_TAG = "vswrist_spring"
-MOTOR_TAG = "vswrist_motor"
-SPRING_FIELDS = 14
-CLOSURE_TAG = "vswrist_closure"
-CLOSURE_FIELDS = 4
 PHYSICS = ("plugin", "callbacks", "bare")
 LEG_COLORS = ("0.85 0.3 0.25 1", "0.3 0.7 0.35 1", "0.25 0.45 0.85 1")
 LINK_RADIUS_1 = 0.03  # m, radius at which the first link bracket is drawn (visual only)
@@ -295,7 +291,6 @@ def model_xml(params: WristParams | str | None = None, physics: str = "plugin", 
 def _resolve_physics(physics: str | None) -> str:
     """None: the plugin where it can be compiled, else the fallback callbacks (``native.install``). Makes
     sure what the mode needs is loaded or installed."""
-    from . import native  # imported here: native imports this module's constants
 
     if physics is None:
         return native.physics(native.install())
@@ -355,7 +350,6 @@ def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | Non
     key.name = "home"
     key.ctrl = ctrl
     key.act = act
-    from . import native
 
     with native.compiling():  # the fallback callbacks must not run inside the compiler
         m = spec.compile()

@@ -30,9 +30,17 @@ import warnings
 import mujoco
 import numpy as np
 
-from .builder import CLOSURE_FIELDS, CLOSURE_TAG, MOTOR_TAG, SPRING_FIELDS, SPRING_TAG
 from .plugin_lib import (CLOSURE_PLUGIN, DRIVE_PLUGIN, PLUGIN_SOURCE, compile_library, load_plugin,  # noqa: F401
                          mujoco_entry_point, plugin_library)
+
+# The fallback's parameters, which ``builder`` writes into a callbacks model as custom numerics: the springs'
+# (K, delta0, then the spring and motor joints' addresses), the loop-closure monitor's (userdata slot, coupler
+# body, end bodies) and a tag marking the model's motors as this package's
+SPRING_TAG = "vswrist_spring"
+MOTOR_TAG = "vswrist_motor"
+SPRING_FIELDS = 14
+CLOSURE_TAG = "vswrist_closure"
+CLOSURE_FIELDS = 4
 
 _backend: str | None = None
 _py_prev: dict[str, object] = {}
