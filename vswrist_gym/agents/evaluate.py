@@ -39,7 +39,7 @@ CHECKPOINT_HELP = ("which model of a run directory: newest (default: the newest 
 class AgentSpec:
     """An agent named on the command line: 'analytic', 'analytic:STIFFNESS' (in [-1, 1]), a run directory, an RL
     Zoo experiment folder, a model file inside either (see runs.TrainedAgent), or a policy shipped in the package,
-    'pretrained:<Task>[:<track>]' (vswrist_gym.pretrained). `vswrist evaluate`, `video` and `view` all parse
+    'pretrained:<Task>[:<track>]' (agents.shipped). `vswrist evaluate`, `video` and `view` all parse
     --agent here."""
 
     def __init__(self, text: str, checkpoint: str = "newest"):
@@ -48,10 +48,10 @@ class AgentSpec:
         self.stiffness: float | None = None
         self.pretrained: Path | None = None
         if text.startswith("pretrained:"):
-            from vswrist_gym import pretrained
+            from vswrist_gym.agents import shipped
 
             self.kind = "trained"
-            self.pretrained = pretrained.resolve(text)
+            self.pretrained = shipped.resolve(text)
             if checkpoint not in ("final", "newest"):
                 raise ConfigError(f"--checkpoint {checkpoint}: a shipped policy ({text}) has its final model only")
             self.trained = TrainedAgent(self.pretrained, checkpoint="final")
