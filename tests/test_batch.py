@@ -49,7 +49,7 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, la
         if not latency:
             from vswrist_gym.model import advance_lib
 
-            assert (venv.unwrapped._advance_fn is not None) == (advance_lib.load() is not None)
+            assert (venv.unwrapped.batch_sim.lib is not None) == (advance_lib.load() is not None)
         singles = [gym.make(env_id, config=cfg) for _ in range(N)]
         rng = np.random.default_rng(seed)
         obs, vinfo = venv.reset(seed=seed)
@@ -89,7 +89,7 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, la
             needs_reset = term | trunc
         assert autoresets >= 2 * N  # several episodes per world (and the diverged one)
         if not latency:
-            assert not venv.unwrapped._blocked.any()
+            assert not venv.unwrapped.batch_sim.blocked.any()
         venv.close()
 
 

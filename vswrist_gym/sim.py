@@ -35,6 +35,7 @@ from .kinematics import LEG_NAMES, RangeOfMotionError, WristKinematics
 from .model import native
 from .model.builder import SceneFn, build_model
 from .model.native import CLOSURE_TAG, weld_violation
+from .model.plugin_lib import CONTACT_PLUGIN, CONTACT_STATE_SIZE, DRIVE_PLUGIN
 from .params import WristParams, load_params
 from .stiffness import PostureTerms, lambda_range, motor_references
 
@@ -52,6 +53,32 @@ class SimulationError(RuntimeError):
 # what ``WristSim.step`` (and a batch's compiled advance, ``model.advance_lib``) reports for a diverged step
 DIVERGED_MESSAGE = ("MuJoCo reported NaN or huge positions/velocities/accelerations and reset the state; the "
                     "timestep or constraint settings are too coarse for this motion")
+
+
+def add_contact_meter(spec: mujoco.MjSpec, name: str, body, geom1: str, geom2: str | None = None) -> bool:
+    """Adds a ``vswrist.contact`` plugin instance ``name`` to a spec that runs the compiled physics (it names the
+    VS-Wrist drive plugin), referenced by ``body`` (an MjsBody): after every substep's constraint solve it adds
+    the normal forces of the contacts of geom ``geom1`` (with ``geom2``, or with anything), counts the substep
+    and keeps the first contact's time, position and the body's velocity (``contact_meter_state``). Returns
+    False, adding nothing, where the spec runs the fallback callbacks (no plugins)."""
+    if not any(p.plugin_name == DRIVE_PLUGIN for p in spec.plugins):
+        return False
+    spec.activate_plugin(CONTACT_PLUGIN)
+    inst = spec.add_plugin(name=name, plugin_name=CONTACT_PLUGIN, active=True)
+    inst.config = {"geom1": geom1} if geom2 is None else {"geom1": geom1, "geom2": geom2}
+    body.plugin.name = name
+    body.plugin.active = True
+    return True
+
+
+def contact_meter_state(model: mujoco.MjModel, data: mujoco.MjData, name: str) -> np.ndarray | None:
+    """A view of the plugin state of contact meter ``name`` (``model.plugin_lib.CONTACT_STATE``: force sum,
+    substeps, touched, touch time, position (3), velocity (3)), or None where the model has no such meter."""
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, name)
+    if i < 0:
+        return None
+    adr = int(model.plugin_stateadr[i])
+    return data.plugin_state[adr:adr + CONTACT_STATE_SIZE]
 
 
 class WristSim:

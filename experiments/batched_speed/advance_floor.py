@@ -37,7 +37,8 @@ def main(argv=None) -> int:
     for task, env_id in vswrist_gym.LATEST.items():
         v = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", threads=1)
         core = v.unwrapped
-        if core._advance_fn is None:
+        bsim = core.batch_sim
+        if bsim.lib is None:
             print(f"{task:<11} no compiled advance (no C++ compiler)")
             v.close()
             continue
@@ -51,11 +52,11 @@ def main(argv=None) -> int:
                 seconds = np.zeros(n)
                 t0 = time.process_time()
                 for _ in range(args.periods):
-                    A.advance(core._advance_fn, core._handles, worlds, theta, core._ctrl_idx, core._nstep, sync,
-                              status, seconds)
+                    A.advance(bsim.lib, bsim.handles, worlds, theta, bsim.ctrl_idx, bsim.nstep, sync, status,
+                              seconds)
                 ratios.setdefault(label, []).append((time.process_time() - t0) / float(seconds.sum()))
-        used = dict((s, lab) for s, lab in SYNCS)[core._sync]
-        print(f"{task:<11}{core._nstep:>9}" + "".join(f"{np.median(ratios[lab]):>12.3f}" for _, lab in SYNCS)
+        used = dict((s, lab) for s, lab in SYNCS)[bsim.sync]
+        print(f"{task:<11}{bsim.nstep:>9}" + "".join(f"{np.median(ratios[lab]):>12.3f}" for _, lab in SYNCS)
               + f"{used:>12}")
         v.close()
     return 0

@@ -11,8 +11,8 @@ works per world). One ``step`` of the batch:
    ``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics
    and the ``motor`` mode world by world; then the task's loads, ``_before_physics_worlds`` (over arrays of
    worlds where the task writes them so: Drill, LoadHold; else each world's ``_before_physics``);
-4. the physics of all worlds: one control period each, through the compiled advance (``model.advance_lib``:
-   per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
+4. the physics of all worlds: one control period each, through the batch simulator (``batch_sim.BatchSim``,
+   the compiled advance: per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
    ``threads`` threads, up to ``CHUNKS_PER_THREAD`` chunks per thread (of at least ``MIN_CHUNK_WORLDS`` worlds)
    are stepped by the library's ``threads - 1`` threads and by the calling thread: step 3 of the other chunks
    runs beside the first chunks' physics, and step 5 of most chunks beside the last ones' (``_native_step``),
@@ -27,8 +27,8 @@ works per world). One ``step`` of the batch:
    threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
    only contend for the GIL: the batch then steps serially;
 5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool
-   wrench: what ``_gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics
-   threads, or in Python without it), its reference (a row of the table its reset
+   wrench: what ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the
+   physics threads, or in Python without it, and computed over arrays by ``BatchSim``'s reads), its reference (a row of the table its reset
    computed: ``_reference`` is written over arrays of times), its task hooks (``_contact_force``,
    ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own
    generator, in the single env's order) run world by world; the measures' math, divergence checks, the common
@@ -59,7 +59,7 @@ from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..model import advance_lib
+from ..batch_sim import DIVERGED, OK, BatchSim
 from ..sim import DIVERGED_MESSAGE
 from ..stiffness import SpringLaw, spring_energy, spring_stiffness, spring_torque
 from .actions import check_action
@@ -94,11 +94,6 @@ def _row_sum_sq(x: np.ndarray) -> np.ndarray:
         out = out + sq[..., j]
     return out
 
-
-# the MjData array behind each field of a gather plan (``advance_lib.F_*``), for ``VSWristVectorEnv._gather``
-GATHER_FIELDS = {advance_lib.F_QPOS: "qpos", advance_lib.F_QVEL: "qvel", advance_lib.F_XPOS: "xpos",
-                 advance_lib.F_XQUAT: "xquat", advance_lib.F_XMAT: "xmat", advance_lib.F_CVEL: "cvel",
-                 advance_lib.F_SENSOR: "sensordata", advance_lib.F_SITE_XMAT: "site_xmat"}
 
 THREADS_ENV = "VSWRIST_THREADS"  # physics threads of every batch made without ``threads`` (e.g. by vswrist train)
 
@@ -196,20 +191,14 @@ class VSWristVectorEnv(VectorEnv):
         self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS or x[2] in own]
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
-        # The compiled advance (``model.advance_lib``): one GIL-free call per chunk of worlds, for tasks whose
+        # The compiled advance (``BatchSim``): one GIL-free call per chunk of worlds, for tasks whose
         # physics is the base class's (or the contact meter's plugin path); else ``_advance`` world by world.
         standard = cls._advance is VSWristEnv._advance and cls._advance_physics in (
             VSWristEnv._advance_physics, PeriodMeanForce._advance_physics)
-        self._advance_fn = advance_lib.load() if self.backend == "c" and standard else None
         self._meter_task = issubclass(cls, PeriodMeanForce)
-        self._sync = advance_lib.SYNC_KINEMATICS if first._light_sync else advance_lib.SYNC_FORWARD
-        self._nstep = int(round(first.ctrl_dt / first.sim.timestep))
-        self._ctrl_idx = np.asarray(first.sim._act_ids, dtype=np.int32)
-        self._handles = np.zeros((self.num_envs, advance_lib.HANDLE_COLUMNS), dtype=np.uint64)
-        self._handle_sims: list = [None] * self.num_envs
-        self._blocked = np.zeros(self.num_envs, dtype=bool)  # worlds the compiled advance cannot step
-        self._plan, self._cols = self._gather_plan(first)
-        self._gather_width = int(self._plan[:, 2].sum())  # columns of a gather row
+        self.batch_sim = BatchSim(self.num_envs, first.sim, first.ctrl_dt, first._light_sync,
+                                  "tool_wrench" in first.cfg["observation"], self._meter_task,
+                                  compiled=self.backend == "c" and standard)
         # CPU seconds inside the worlds' mj_step substeps (the compiled path), summed while not None (benchmarks)
         self.physics_seconds: float | None = None
         self.set_threads(threads)
@@ -236,10 +225,9 @@ class VSWristVectorEnv(VectorEnv):
         if pool is not None:
             pool.shutdown(wait=True)
         self._pool = None
-        cpool = getattr(self, "_cpool", None)
-        if cpool is not None:
-            cpool.close()
-        self._cpool = None
+        bsim = getattr(self, "batch_sim", None)
+        if bsim is not None:
+            bsim.close()
 
     def _advance_chunk(self, lo: int, hi: int, live: np.ndarray) -> None:
         envs = self.envs
@@ -283,51 +271,38 @@ class VSWristVectorEnv(VectorEnv):
         if f is not None:
             f.result()  # re-raises the settling's exception here
         out = self.envs[i]._reset_finish()
-        self._refresh_handles([i])
+        self._attach([i])
         return out
 
     # ------------------------------------------------------------------ the compiled advance
-    def _refresh_handles(self, worlds) -> None:
-        """Handle-table rows of ``worlds`` (after a reset: randomisation may rebuild a world's simulator); a world
-        whose simulator the compiled call cannot step as ``_advance`` would is marked blocked."""
-        H = advance_lib
+    def _attach(self, worlds) -> None:
+        """The batch simulator's handles of ``worlds`` (after a reset: randomisation may rebuild a simulator)."""
+        bsim, meter_task = self.batch_sim, self._meter_task
         for i in worlds:
             e = self.envs[i]
-            sim = e.sim
-            meter = getattr(e, "_meter", None) if self._meter_task else None
-            row = self._handles[i]
-            row[H.H_MODEL], row[H.H_DATA] = sim.model._address, sim.data._address
-            row[H.H_PEAK] = sim._closure_peak.ctypes.data
-            row[H.H_METER] = 0 if meter is None else meter.ctypes.data
-            row[H.H_METER_SIZE] = 0 if meter is None else meter.size
-            self._handle_sims[i] = sim
-            self._blocked[i] = ((self._meter_task and meter is None)
-                                or int(round(e.ctrl_dt / sim.timestep)) != self._nstep
-                                or not np.array_equal(sim._act_ids, self._ctrl_idx))
+            bsim.attach(i, e.sim, e.ctrl_dt, getattr(e, "_meter", None) if meter_task else None)
 
     def _native_ready(self, idx: list) -> bool:
         """Whether the compiled advance steps the worlds ``idx`` this period (handles refreshed if stale)."""
-        if self._advance_fn is None:
+        bsim, envs = self.batch_sim, self.envs
+        if bsim.lib is None:
             return False
-        envs, sims = self.envs, self._handle_sims
-        stale = [i for i in idx if envs[i].sim is not sims[i]]
+        stale = [i for i in idx if not bsim.attached(i, envs[i].sim)]
         if stale:
-            self._refresh_handles(stale)
+            self._attach(stale)
         # actuation latency (two references within the period) is drawn at each reset, however it was called
-        return not self._blocked[idx].any() and not any(envs[i]._latency > 0.0 for i in idx)
+        return bsim.steps(idx) and not any(envs[i]._latency > 0.0 for i in idx)
 
     def _after_native(self, worlds: list, idx: list, status: np.ndarray) -> None:
         """What ``_advance`` leaves on each world and its simulator, from the compiled call's status."""
-        light = self._sync == advance_lib.SYNC_KINEMATICS
         meter = self._meter_task
-        for e, i, st in zip(worlds, idx, status.tolist()):
-            sim = e.sim
+        for e, i, st in zip(worlds, idx, self.batch_sim.settle([e.sim for e in worlds], status)):
             if meter:
                 e._period_ran = True
-            if st == advance_lib.OK:
-                sim._stale, sim._light, e._failure = False, light, None
-            elif st == advance_lib.DIVERGED:
-                sim._stale, e._failure = True, DIVERGED_MESSAGE
+            if st == OK:
+                e._failure = None
+            elif st == DIVERGED:
+                e._failure = DIVERGED_MESSAGE
             else:
                 raise mujoco.FatalError(f"env {i}: MuJoCo raised an error inside this world's physics step")
 
@@ -338,7 +313,7 @@ class VSWristVectorEnv(VectorEnv):
         chunks of worlds, stepped by the library's ``threads - 1`` threads and by this one:
 
         * ``_begin`` of the first chunk of each pool thread, which starts it; then, while those chunks' physics
-          runs, ``_begin`` of the others, which are then released to the pool (``advance_lib.Pool.release``):
+          runs, ``_begin`` of the others, which are then released to the pool (``BatchSim.pool``):
           the Python before the physics is one chunk's, not the batch's. Should that second ``_begin`` raise (a
           task hook's bug: the actions were checked before), the first chunks have stepped and the others have
           not, so the batch then needs a ``reset()`` (``ResetNeeded`` otherwise) rather than going on from a
@@ -357,9 +332,8 @@ class VSWristVectorEnv(VectorEnv):
         widx = np.asarray(idx, dtype=np.int32)
         status = np.zeros(L, dtype=np.int32)
         seconds = None if self.physics_seconds is None else np.zeros(L)
-        G = np.empty((L, self._gather_width))  # the gather (``_gather_plan``)
-        plan = self._plan
-        lib = self._advance_fn
+        bsim = self.batch_sim
+        G = np.empty((L, bsim.width))  # the gathered reads (``batch_sim.gather_plan``)
         parts: list = []  # (positions in idx, _finish's results for those worlds)
         A = None  # the clipped actions, once ``_begin`` has run for every world
 
@@ -382,8 +356,7 @@ class VSWristVectorEnv(VectorEnv):
             A, TH = begin(0, L)
             if meanwhile is not None:
                 meanwhile()
-            advance_lib.advance(lib, self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status,
-                                seconds, plan, G)
+            bsim.advance(widx, TH, status, seconds, G)
             finish(list(range(L)))
         else:
             bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
@@ -391,11 +364,8 @@ class VSWristVectorEnv(VectorEnv):
             A1, TH1 = begin(0, head)
             TH = np.empty((L, 4))
             TH[:head] = TH1
-            pool = self._cpool
-            if pool is None or pool.pid != os.getpid():  # made here: threads do not survive a fork
-                pool = self._cpool = advance_lib.Pool(lib, self.threads - 1)
-            pool.submit(self._handles, widx, TH, self._ctrl_idx, self._nstep, self._sync, status, seconds, bounds,
-                        released=self.threads - 1, plan=plan, out=G)
+            pool = bsim.pool(self.threads - 1)
+            bsim.submit(pool, widx, TH, status, seconds, bounds, self.threads - 1, G)
             todo = np.ones(k, dtype=bool)
             try:
                 if meanwhile is not None:
@@ -620,13 +590,14 @@ class VSWristVectorEnv(VectorEnv):
 
     def _finish(self, worlds: list, A: np.ndarray, G: np.ndarray | None = None):
         """``VSWristEnv._finish_step`` of the live worlds: the simulators' reads come gathered in ``G`` (rows of
-        ``_gather_plan``, filled by the compiled advance; None: gathered here), the task hooks run world by
+        ``batch_sim.gather_plan``, filled by the compiled advance; None: gathered here), the task hooks run world by
         world (in the single env's order, so each draws its noise from its own generator as it would alone);
         the measures' math, rewards, observation and info run over arrays."""
         first = worlds[0]
         L = len(worlds)
         dt = first.ctrl_dt
         light = first._light_sync
+        bsim = self.batch_sim
         noise = first._noise_std is not None
         failed = [e._failure for e in worlds]
         hook_contact = self._hook_contact
@@ -658,16 +629,16 @@ class VSWristVectorEnv(VectorEnv):
                 sims[k].posture()
                 redo.append(k)
         if G is None:
-            G = self._gather(sims)
+            G = bsim.gather(sims)
         elif redo:
-            G[redo] = self._gather([sims[k] for k in redo])
-        P, D, Q = self._read_posture(G)
+            G[redo] = bsim.gather([sims[k] for k in redo])
+        P, D, Q = bsim.read_posture(G)
         bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
         failures: dict[int, str] = {k: failed[k] for k in range(L) if failed[k] is not None}
         for k in np.flatnonzero(bad).tolist():
             if k not in failures:
                 failures[k] = f"non-finite state at t = {worlds[k]._t:.3f} s"
-        closure = self._read_closure(G, sims, light)
+        closure = bsim.read_closure(G, sims)
         for k in failures:
             # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
             e = worlds[k]
@@ -676,8 +647,8 @@ class VSWristVectorEnv(VectorEnv):
             e.sim.apply_wrench(np.zeros(3), np.zeros(3))
             e._measure()
             P[k], D[k], contact[k] = e._posture, e._defl, e._contact
-            G[k] = self._gather([e.sim])[0]  # what the observation reads: the clean state
-            Q[k] = G[k, self._cols["qpos"]]
+            G[k] = bsim.gather([e.sim])[0]  # what the observation reads: the clean state
+            Q[k] = bsim.qpos(G[k:k + 1])[0]
         law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
         e3 = spring_energy(D, law)
         energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
@@ -755,12 +726,11 @@ class VSWristVectorEnv(VectorEnv):
         # observation (ObservationsMixin._observation over arrays)
         for a, b, name in self._array_terms:
             if name == "posture_rate":
-                raw[:, a:b] = self._read_posture_rate(G, P)
+                raw[:, a:b] = bsim.read_posture_rate(G, P)
                 if NZ is not None:
                     raw[:, a:b] += NZ[:, 3:6]
             elif name == "motor_angles":
-                s0 = sims[0]
-                raw[:, a:b] = Q[:, s0._qadr_motor]
+                raw[:, a:b] = bsim.read_motor_angles(Q)
             elif name == "posture":
                 raw[:, a:b] = P if NZ is None else P + NZ[:, 0:3]
             elif name == "deflections":
@@ -782,7 +752,7 @@ class VSWristVectorEnv(VectorEnv):
                 raw[:, a] = steps / first.episode_steps
         for a, b, name in self._world_terms:
             if name == "tool_wrench":
-                raw[:, a:b] = self._read_tool_wrench(G)
+                raw[:, a:b] = bsim.read_tool_wrench(G)
                 if NZ is not None:
                     raw[:, a:b] += NZ[:, 6:12]
         np.maximum(raw, first._obs_low, out=raw)
@@ -812,105 +782,6 @@ class VSWristVectorEnv(VectorEnv):
                 cols[key] = np.array([x[key] for x in extra])
         cols["posture_error_vec"] = err
         return raw.astype(np.float32), reward, terminated, truncated, cols, failures
-
-    # The simulator reads of the step: what ``_gather_plan`` names, copied from every world's MjData into one row
-    # per world (by the compiled advance on the physics threads, or by ``_gather``), and computed as
-    # ``WristSim.posture``/``deflections``/``posture_rate``/``loop_closure_peak``/``tool_wrench`` compute them,
-    # with math's asin/atan2 element by element as those do.
-    def _gather_plan(self, first) -> tuple[np.ndarray, dict]:
-        """The gather's plan (int32 rows of ``advance_lib`` field, start, count) and each read's columns."""
-        H = advance_lib
-        s0 = first.sim
-        rows: list = []
-        cols: dict[str, slice] = {}
-
-        def add(name: str, field: int, start: int, count: int) -> None:
-            c = sum(r[2] for r in rows)
-            rows.append((field, start, count))
-            cols[name] = slice(c, c + count)
-
-        add("qpos", H.F_QPOS, 0, s0.model.nq)
-        add("coupler_xmat", H.F_XMAT, 9 * s0.coupler_id, 9)
-        add("coupler_cvel", H.F_CVEL, 6 * s0.coupler_id, 6)
-        add("ps_rate", H.F_QVEL, s0._vadr_ps, 1)
-        add("peak", H.F_PEAK, 0, 1)
-        if first._light_sync:  # the weld violation at the end of the period (``_read_closure``)
-            for b in [s0.coupler_id] + list(s0._end_ids):
-                add(f"xpos{b}", H.F_XPOS, 3 * b, 3)
-                add(f"xquat{b}", H.F_XQUAT, 4 * b, 4)
-        if "tool_wrench" in first.cfg["observation"]:
-            add("tool_R", H.F_SITE_XMAT, 9 * s0._tool_site, 9)
-            add("tool_f", H.F_SENSOR, s0._force_adr, 3)
-            add("tool_t", H.F_SENSOR, s0._torque_adr, 3)
-        return np.array(rows, dtype=np.int32).reshape(-1, 3), cols
-
-    def _gather(self, sims: list) -> np.ndarray:
-        """The gather of ``sims`` in Python (worlds the compiled advance did not step or read), from their
-        synced MjData."""
-        G = np.empty((len(sims), self._gather_width))
-        for k, s in enumerate(sims):
-            parts = [s._closure_peak if f == advance_lib.F_PEAK
-                     else getattr(s.data, GATHER_FIELDS[f]).reshape(-1)[a:a + n] for f, a, n in self._plan.tolist()]
-            G[k] = np.concatenate(parts)
-        return G
-
-    def _read_posture(self, G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Measured postures (N, 3) and spring deflections (N, 3) (``WristSim.posture``, ``deflections``), and
-        the joint positions they come from (N, nq)."""
-        s0 = self.envs[0].sim
-        Q = G[:, self._cols["qpos"]]
-        X = G[:, self._cols["coupler_xmat"]]
-        asin, atan2 = math.asin, math.atan2
-        P = np.empty((len(G), 3))
-        P[:, 0] = [asin(max(-1.0, min(1.0, -r6))) for r6 in X[:, 6].tolist()]
-        P[:, 1] = [atan2(r3, r0) for r3, r0 in zip(X[:, 3].tolist(), X[:, 0].tolist())]
-        P[:, 2] = Q[:, s0._qadr_ps]
-        return P, Q[:, s0._qadr_q1] - Q[:, s0._qadr_m3], Q
-
-    def _read_tool_wrench(self, G: np.ndarray) -> np.ndarray:
-        """``WristSim.tool_wrench`` of every world (N, 6): the tool's force/torque sensors rotated to the base."""
-        c = self._cols
-        R = G[:, c["tool_R"]].reshape(len(G), 3, 3)
-        FT = np.stack([G[:, c["tool_f"]], G[:, c["tool_t"]]], axis=1)  # (N, 2, 3)
-        return np.matmul(R[:, None], FT[:, :, :, None]).reshape(len(G), 6)
-
-    def _read_posture_rate(self, G: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """d/dt of the postures (N, 3) (``WristSim.posture_rate``; P: the postures just read)."""
-        C = G[:, self._cols["coupler_cvel"]]
-        wx, wy, wz = C[:, 0], C[:, 1], C[:, 2]
-        ay, az = P[:, 0], P[:, 1]
-        sz, cz = np.sin(az), np.cos(az)
-        ax_rate = (cz * wx + sz * wy) / np.cos(ay)
-        out = np.empty((len(G), 3))
-        out[:, 0] = -sz * wx + cz * wy
-        out[:, 1] = wz + np.sin(ay) * ax_rate
-        out[:, 2] = G[:, self._cols["ps_rate"]][:, 0]
-        return out
-
-    def _read_closure(self, G: np.ndarray, sims: list, light: bool) -> list:
-        """``WristSim.loop_closure_peak`` of every world (after ``_advance`` synced it). After a light sync the
-        monitor has not seen the final state: its weld violation (``native.weld_violation``) over arrays."""
-        c = self._cols
-        peak = G[:, c["peak"]][:, 0]
-        stale = [k for k, s in enumerate(sims) if s._stale or s._light != light]
-        if not light:
-            out = peak.tolist()
-        else:
-            s0 = sims[0]
-            cid = s0.coupler_id
-            qc = G[:, c[f"xquat{cid}"]]
-            pc = G[:, c[f"xpos{cid}"]]
-            worst = np.zeros(len(G))
-            for e in s0._end_ids:
-                pe, q = G[:, c[f"xpos{e}"]], G[:, c[f"xquat{e}"]]
-                dx, dy, dz = (pe[:, j] - pc[:, j] for j in range(3))
-                dot = np.abs(qc[:, 0] * q[:, 0] + qc[:, 1] * q[:, 1] + qc[:, 2] * q[:, 2] + qc[:, 3] * q[:, 3])
-                worst = np.maximum(worst, np.maximum(np.sqrt(dx * dx + dy * dy + dz * dz),
-                                                     2.0 * np.arccos(np.minimum(1.0, dot))))
-            out = np.where(worst > peak, worst, peak).tolist()
-        for k in stale:  # not synced as the advance syncs (a failed step): the world's own accessor
-            out[k] = sims[k].loop_closure_peak()
-        return out
 
     @staticmethod
     def _coupler_stiffness(first, P, D, law: SpringLaw) -> np.ndarray:
@@ -1056,16 +927,12 @@ class VSWristVectorEnv(VectorEnv):
 
     def __getstate__(self):
         state = dict(self.__dict__)
-        state["_pool"] = state["_cpool"] = None
-        # the compiled function and the worlds' addresses belong to this process: rebuilt on loading
-        state["_advance_fn"] = state["_advance_fn"] is not None
-        state["_handle_sims"] = [None] * self.num_envs
+        state["_pool"] = None
         return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-        self._advance_fn = advance_lib.load() if self._advance_fn else None
-        self._refresh_handles(range(self.num_envs))
+        self._attach(range(self.num_envs))
         self.set_threads(self.threads)
 
     def __repr__(self) -> str:

@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 
 from ..kinematics import rot_x, rot_y  # noqa: F401  (re-exported for the task modules)
+from ..sim import add_contact_meter, contact_meter_state
 
 FINGER_END = 0.06  # m, where the hand's fingers end along the tool X axis (model geometry)
 
@@ -116,7 +117,7 @@ class PeriodMeanForce:
     force acted), for tasks that need an impact's instant (Hammer).
 
     The measurement runs inside the physics, after the constraint solve of every substep: in the compiled
-    physics a ``vswrist.contact`` plugin instance (``model.plugin_lib``) accumulates into its plugin state, so
+    physics a ``vswrist.contact`` plugin instance (``sim.add_contact_meter``) accumulates into its plugin state, so
     a period is one ``mj_step(m, d, n)`` call like every other task's (and a batch advances these worlds on its
     threads too); the state is per MjData and part of ``mjSTATE_INTEGRATION``. With the Python fallback
     callbacks (no C compiler) there is no plugin and the period runs one substep at a time, reading the same
@@ -134,30 +135,17 @@ class PeriodMeanForce:
         """Count contacts of geom ``geom1`` with ``geom2`` (None: with anything); ``body`` (an MjsBody) is the body
         whose velocity ``_on_first_contact`` gets. Adds the plugin instance where the spec runs the compiled
         physics (it names the VS-Wrist plugins); the fallback's spec gets nothing."""
-        from ..model.plugin_lib import CONTACT_PLUGIN, DRIVE_PLUGIN
         self._meter_names = (body.name, geom1, geom2)
-        if not any(p.plugin_name == DRIVE_PLUGIN for p in spec.plugins):
-            return
-        spec.activate_plugin(CONTACT_PLUGIN)
-        inst = spec.add_plugin(name=CONTACT_METER, plugin_name=CONTACT_PLUGIN, active=True)
-        inst.config = {"geom1": geom1} if geom2 is None else {"geom1": geom1, "geom2": geom2}
-        body.plugin.name = CONTACT_METER
-        body.plugin.active = True
+        add_contact_meter(spec, CONTACT_METER, body, geom1, geom2)
 
     def _find_contact_meter(self) -> None:
         """After (re)compilation: the plugin state's view (None with the fallback), geom and body ids."""
-        from ..model.plugin_lib import CONTACT_STATE_SIZE
         m = self.model
         body, geom1, geom2 = self._meter_names
         self._meter_body = int(m.body(body).id)
         self._meter_geom1 = int(m.geom(geom1).id)
         self._meter_geom2 = -1 if geom2 is None else int(m.geom(geom2).id)
-        i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_PLUGIN, CONTACT_METER)
-        if i < 0:
-            self._meter = None
-        else:
-            adr = int(m.plugin_stateadr[i])
-            self._meter = self.data.plugin_state[adr:adr + CONTACT_STATE_SIZE]
+        self._meter = contact_meter_state(m, self.data, CONTACT_METER)
         self._cforce = np.zeros(6)
         self._vel6 = np.zeros(6)
 

@@ -249,7 +249,7 @@ def bench_batch(name: str, n: int, steps: int, threads: int, pinned: bool) -> di
     # the physics: CPU time inside the worlds' mj_step substeps: timed by the compiled advance itself, plus
     # the time in each world's WristSim.step (the resets' settling, and the steps where the compiled advance
     # does not run)
-    compiled = getattr(core, "_advance_fn", None) is not None
+    compiled = core.batch_sim.lib is not None
     timers = []
     for e in core.envs:
         t = _Timer(e.sim.step)
@@ -288,12 +288,10 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401
-    from vswrist_gym.model import advance_lib
-
     venv = gym.make_vec(LATEST[name], num_envs=n, vectorization_mode="vector_entry_point", threads=1)
     core = venv.unwrapped
-    lib = getattr(core, "_advance_fn", None)
-    if lib is None:
+    bsim = core.batch_sim
+    if bsim.lib is None:
         venv.close()
         return None, None
     venv.reset(seed=0)
@@ -301,21 +299,19 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[
     theta = np.ascontiguousarray([e.sim.motor_references() for e in core.envs])
     status = np.zeros(n, dtype=np.int32)
     bounds = np.linspace(0, n, 4 * threads + 1).round().astype(np.int32)
-    pool = advance_lib.Pool(lib, threads - 1)
+    pool = bsim.pool(threads - 1)
     reps = max(steps // n, 10)
     seconds = np.zeros(n)
-    gathered = np.empty((n, core._gather_width))
+    gathered = np.empty((n, bsim.width))
 
     def run(t: int) -> tuple[float, float]:
         """Wall and CPU seconds of ``reps`` periods on ``t`` threads."""
         t0, c0 = time.perf_counter(), time.process_time()
         for _ in range(reps):
             if t == 1:
-                advance_lib.advance(lib, core._handles, worlds, theta, core._ctrl_idx, core._nstep, core._sync,
-                                    status, seconds, core._plan, gathered)
+                bsim.advance(worlds, theta, status, seconds, gathered)
             else:
-                pool.submit(core._handles, worlds, theta, core._ctrl_idx, core._nstep, core._sync, status, None,
-                            bounds)
+                pool.submit(bsim.handles, worlds, theta, bsim.ctrl_idx, bsim.nstep, bsim.sync, status, None, bounds)
                 while pool.run_one() >= 0:
                     pass
                 pool.wait()
@@ -324,7 +320,6 @@ def bench_physics_scaling(name: str, n: int, steps: int, threads: int) -> tuple[
     one, one_cpu = run(1)
     floor = one_cpu / float(seconds.sum())
     many, _ = run(threads)
-    pool.close()
     venv.close()
     return one / many, floor
 
