@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from vswrist_gym.agents import track as T
+from vswrist_gym.tools import track as T
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACKS = ROOT / "vswrist_gym" / "configs" / "tracks"

@@ -28,7 +28,7 @@ COMMANDS = {
     "aggregate": ("vswrist_gym.agents.aggregate:main", "scores across tasks: IQM, probability of improvement"),
     "export": ("vswrist_gym.model.export:main", "write the wrist as a self-contained MJCF (MuJoCo plugin)"),
     "sweep": ("vswrist_gym.sweep.cli:main", "run a sweep file (grid or hyperparameter search) on Ray"),
-    "track": ("vswrist_gym.agents.track:main", "a track's runs (with --run) and its results table"),
+    "track": ("vswrist_gym.tools.track:main", "a track's runs (with --run) and its results table"),
 }
 
 # The commands that cannot start without the [train] extra: they check it before they write anything.
