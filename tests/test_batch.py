@@ -38,18 +38,17 @@ def _compare_info(single: dict, vec: dict, i: int, where: str) -> None:
 @pytest.mark.parametrize("env_id", IDS)
 def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, latency):
     """World i of the batch reproduces gym.make(id) reset with seed s + i, step for step, through short episodes
-    (autoresets) and a divergence in one world; physics on 2 threads. With latency randomisation the worlds
-    step through ``WristSim`` in Python; without it, through the compiled advance (``model.advance_lib``),
-    with each chunk's rewards and observations computed while later chunks' physics runs."""
+    (autoresets) and a divergence in one world; physics on 2 threads, through the compiled advance
+    (``model.advance_lib``; with latency randomisation, each period's first substeps on the previous motor
+    references), with each chunk's rewards and observations computed while later chunks' physics runs."""
     # episodes of 25 control steps (Hammer runs at 100 Hz), so that every world resets several times
     cfg = {"episode_s": 0.25 if env_id == "VSWrist/Hammer-v0" else 0.5,
            "randomize": {"latency": {"enabled": latency}}}
     for seed in (2, 9):
         venv = make_batch(env_id, config=cfg, threads=2)
-        if not latency:
-            from vswrist_gym.model import advance_lib
+        from vswrist_gym.model import advance_lib
 
-            assert (venv.unwrapped.batch_sim.lib is not None) == (advance_lib.load() is not None)
+        assert (venv.unwrapped.batch_sim.lib is not None) == (advance_lib.load() is not None)
         singles = [gym.make(env_id, config=cfg) for _ in range(N)]
         rng = np.random.default_rng(seed)
         obs, vinfo = venv.reset(seed=seed)
@@ -88,8 +87,7 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, la
             autoresets += int(needs_reset.sum())
             needs_reset = term | trunc
         assert autoresets >= 2 * N  # several episodes per world (and the diverged one)
-        if not latency:
-            assert not venv.unwrapped.batch_sim.blocked.any()
+        assert not venv.unwrapped.batch_sim.blocked.any()
         venv.close()
 
 

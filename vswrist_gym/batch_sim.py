@@ -102,6 +102,11 @@ class BatchSim:
     def attached(self, i: int, sim: WristSim) -> bool:
         return self.sims[i] is sim
 
+    def set_latency(self, idx: list, substeps: list) -> None:
+        """The worlds' actuation latency this period, in substeps (0: none): that many substeps run on the
+        previous motor references before the new ones take over (``VSWristEnv._advance``)."""
+        self.handles[idx, A.H_LATENCY] = substeps
+
     def steps(self, idx: list) -> bool:
         """Whether the compiled advance steps the (attached) worlds ``idx``."""
         return self.lib is not None and not self.blocked[idx].any()

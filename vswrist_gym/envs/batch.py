@@ -22,9 +22,9 @@ works per world). One ``step`` of the batch:
    MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds advance in
    parallel; no task steps substep by substep from Python. The worlds that reset at this step begin their
    episodes together (``VSWristEnv._reset_begin_worlds``: the kinematics of all their initial postures in one
-   pass) and settle (the reset's physics) on a thread pool meanwhile. Without a C++ compiler, or for worlds
-   with actuation latency, each world runs ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads``
-   threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
+   pass) and settle (the reset's physics) on a thread pool meanwhile. Actuation latency (its first substeps on
+   the previous references) runs inside the compiled call too. Without a C++ compiler each world runs
+   ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads`` threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
    only contend for the GIL: the batch then steps serially;
 5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool
    wrench: what ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the
@@ -290,8 +290,16 @@ class VSWristVectorEnv(VectorEnv):
         stale = [i for i in idx if not bsim.attached(i, envs[i].sim)]
         if stale:
             self._attach(stale)
-        # actuation latency (two references within the period) is drawn at each reset, however it was called
-        return bsim.steps(idx) and not any(envs[i]._latency > 0.0 for i in idx)
+        if not bsim.steps(idx):
+            return False
+        # actuation latency (drawn at each reset): the first period after a reset has no previous references
+        lat = [e._latency for e in (envs[i] for i in idx)]
+        if any(lat):
+            bsim.set_latency(idx, [int(round(x / envs[i].sim.timestep)) if x > 0.0 and envs[i]._theta_prev is not None
+                                   else 0 for i, x in zip(idx, lat)])
+        else:
+            bsim.set_latency(idx, 0)
+        return True
 
     def _after_native(self, worlds: list, idx: list, status: np.ndarray) -> None:
         """What ``_advance`` leaves on each world and its simulator, from the compiled call's status."""

@@ -9,9 +9,9 @@ milliseconds. Here a thread makes one ``ctypes`` call for its whole chunk (``cty
 call), so the physics of one chunk overlaps the Python of another.
 
 Per world the call does what ``VSWristEnv._advance`` does through ``WristSim`` (and the contact meter of
-``shared.PeriodMeanForce``), in the same order, so the numbers are the same to the bit: write the motor
-references into ``ctrl``, zero the loop-closure peak and the contact meter's window, ``nstep`` calls of
-``mj_step``, the divergence check on MuJoCo's NaN warnings (a diverged world is left as MuJoCo reset it,
+``shared.PeriodMeanForce``), in the same order, so the numbers are the same to the bit: zero the loop-closure
+peak and the contact meter's window; with actuation latency, that many substeps on the previous motor references
+(and the divergence check); write the motor references into ``ctrl``, the period's other calls of ``mj_step``, the divergence check on MuJoCo's NaN warnings (a diverged world is left as MuJoCo reset it,
 unsynced, as ``WristSim.step`` raises before its sync), then the sync: ``mj_kinematics`` + ``mj_comPos`` +
 ``mj_comVel`` (``sync_kinematics``) or ``mj_forward`` with the sensors enabled (``WristSim._forward``).
 Then, with a gather plan, it copies what the environment reads after the step (joint positions, the coupler's
@@ -36,9 +36,10 @@ import numpy as np
 
 from .plugin_lib import CSRC, build_library
 
-# columns of the handle table (one row per world, uint64): what the call needs of each world's MjModel/MjData
-H_MODEL, H_DATA, H_PEAK, H_METER, H_METER_SIZE = range(5)
-HANDLE_COLUMNS = 5
+# columns of the handle table (one row per world, uint64): what the call needs of each world's MjModel/MjData, and
+# the world's actuation latency this period (substeps run on the previous motor references before the new ones)
+H_MODEL, H_DATA, H_PEAK, H_METER, H_METER_SIZE, H_LATENCY = range(6)
+HANDLE_COLUMNS = 6
 
 # ``status`` of a world after a call
 OK, DIVERGED, MUJOCO_ERROR = 0, 1, 2
@@ -55,7 +56,7 @@ SOURCE = CSRC / "vswrist_advance.cc"
 def advance_defines() -> dict[str, str]:
     """The -D flags of the C++ source: the layouts and codes it shares with this module, defined here only."""
     names = {"HANDLE_COLUMNS": HANDLE_COLUMNS, "H_MODEL": H_MODEL, "H_DATA": H_DATA, "H_PEAK": H_PEAK,
-             "H_METER": H_METER, "H_METER_SIZE": H_METER_SIZE, "OK": OK, "DIVERGED": DIVERGED,
+             "H_METER": H_METER, "H_METER_SIZE": H_METER_SIZE, "H_LATENCY": H_LATENCY, "OK": OK, "DIVERGED": DIVERGED,
              "MUJOCO_ERROR": MUJOCO_ERROR, "SYNC_KINEMATICS": SYNC_KINEMATICS, "SYNC_FORWARD": SYNC_FORWARD,
              "F_QPOS": F_QPOS, "F_QVEL": F_QVEL, "F_XPOS": F_XPOS, "F_XQUAT": F_XQUAT, "F_XMAT": F_XMAT,
              "F_CVEL": F_CVEL, "F_SENSOR": F_SENSOR, "F_SITE_XMAT": F_SITE_XMAT}

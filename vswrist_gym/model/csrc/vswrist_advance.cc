@@ -16,6 +16,9 @@
 #ifndef VSWRIST_H_METER
 #error "VSWRIST_H_METER (handle column) is not defined: compile this file through vswrist_gym.model.advance_lib"
 #endif
+#ifndef VSWRIST_H_LATENCY
+#error "VSWRIST_H_LATENCY (handle column) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
 #ifndef VSWRIST_H_METER_SIZE
 #error "VSWRIST_H_METER_SIZE (handle column) is not defined: compile this file through vswrist_gym.model.advance_lib"
 #endif
@@ -126,14 +129,23 @@ extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int cou
       continue;
     }
     {
-      for (int j = 0; j < 4; j++) d->ctrl[ctrl_idx[j]] = theta[4 * k + j];
+      /* latency: the first substeps of the period run on the previous references (as VSWristEnv._advance
+         runs them in two calls, the divergence checked after each) */
+      const int nlat = (int)row[VSWRIST_H_LATENCY];
       *(mjtNum*)(uintptr_t)row[VSWRIST_H_PEAK] = 0;
       if (row[VSWRIST_H_METER]) memset((void*)(uintptr_t)row[VSWRIST_H_METER], 0, sizeof(mjtNum) * row[VSWRIST_H_METER_SIZE]);
       double t0 = step_seconds ? thread_seconds() : 0.0;
-      for (int s = 0; s < nstep; s++) mj_step(m, d);
+      int diverged = 0;
+      for (int part = nlat > 0 ? 0 : 1; part < 2 && !diverged; part++) {
+        if (part == 1)
+          for (int j = 0; j < 4; j++) d->ctrl[ctrl_idx[j]] = theta[4 * k + j];
+        const int n = part == 0 ? nlat : nstep - nlat;
+        for (int s = 0; s < n; s++) mj_step(m, d);
+        diverged = d->warning[mjWARN_BADQACC].number || d->warning[mjWARN_BADQPOS].number ||
+                   d->warning[mjWARN_BADQVEL].number;
+      }
       if (step_seconds) step_seconds[k] += thread_seconds() - t0;
-      if (d->warning[mjWARN_BADQACC].number || d->warning[mjWARN_BADQPOS].number ||
-          d->warning[mjWARN_BADQVEL].number) {
+      if (diverged) {
         status[k] = VSWRIST_DIVERGED;
         nbad++;
         continue;
