@@ -11,30 +11,30 @@ works per world). One ``step`` of the batch:
    ``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics
    and the ``motor`` mode world by world; then the task's loads, ``_before_physics_worlds`` (over arrays of
    worlds where the task writes them so: Drill, LoadHold; else each world's ``_before_physics``);
-4. the physics of all worlds: one control period each, through the batch simulator (``batch_sim.BatchSim``,
-   the compiled advance: per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
-   ``threads`` threads, up to ``CHUNKS_PER_THREAD`` chunks per thread (of at least ``MIN_CHUNK_WORLDS`` worlds)
-   are stepped by the library's ``threads - 1`` threads and by the calling thread: step 3 of the other chunks
-   runs beside the first chunks' physics, and step 5 of most chunks beside the last ones' (``_native_step``),
-   so the Python of some worlds runs beside the physics of others.
-   The compiled plugins (``model.native``: springs and motors, the loop-closure monitor, and Polish's and
-   Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable state (theirs lives in each
-   MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds advance in
-   parallel; no task steps substep by substep from Python. The worlds that reset at this step begin their
-   episodes together (``VSWristEnv._reset_begin_worlds``: the kinematics of all their initial postures in one
-   pass) and settle (the reset's physics) on a thread pool meanwhile. Actuation latency (its first substeps on
-   the previous references) runs inside the compiled call too. Without a C++ compiler each world runs
-   ``_advance`` (the bindings' ``mj_step``, which releases the GIL) on a pool of ``threads`` threads; with the Python fallback callbacks (no C compiler) each substep re-enters Python, so threads would
-   only contend for the GIL: the batch then steps serially;
-5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool
-   wrench: what ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the
-   physics threads, or in Python without it, and computed over arrays by ``BatchSim``'s reads), its reference (a row of the table its reset
+4. the physics of all worlds: one control period each, through the batch simulator (``batch_sim.BatchSim``, the compiled
+   advance: per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
+   ``threads`` threads, up to ``CHUNKS_PER_THREAD`` chunks per thread (of at least ``MIN_CHUNK_WORLDS`` worlds) are
+   stepped by the library's ``threads - 1`` threads and by the calling thread: step 3 of the other chunks runs beside
+   the first chunks' physics, and step 5 of most chunks beside the last ones' (``_native_step``), so the Python of some
+   worlds runs beside the physics of others. The compiled plugins (``model.native``: springs and motors, the
+   loop-closure monitor, and Polish's and Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable
+   state (theirs lives in each MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so
+   worlds advance in parallel; no task steps substep by substep from Python. The worlds that reset at this step begin
+   their episodes together (``VSWristEnv._reset_begin_worlds``: the kinematics of all their initial postures in one
+   pass) and settle (the reset's physics) on a thread pool meanwhile. Actuation latency (its first substeps on the
+   previous references) runs inside the compiled call too. Without a C++ compiler each world runs ``_advance`` (the
+   bindings' ``mj_step``, which releases the GIL) on a pool of ``threads`` threads; with the Python fallback callbacks
+   (no C compiler) each substep re-enters Python, so threads would only contend for the GIL: the batch then steps
+   serially;
+5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool wrench: what
+   ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics threads, or in
+   Python without it, and computed over arrays by ``BatchSim``'s reads), its reference (a row of the table its reset
    computed: ``_reference`` is written over arrays of times), its task hooks (``_contact_force``,
-   ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own
-   generator, in the single env's order) run world by world; the measures' math, divergence checks, the common
-   reward terms, the observation and the info (Gymnasium's vector info: arrays and ``_key`` masks) are computed
-   over arrays, each with the single env's operations in the single env's order, so world i of a batch is the
-   single env with seed s + i (to the bit on one machine: ``tests/test_batch.py`` checks 1e-9).
+   ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own generator, in the
+   single env's order) run world by world; the measures' math, divergence checks, the common reward terms, the
+   observation and the info (Gymnasium's vector info: arrays and ``_key`` masks) are computed over arrays, each with the
+   single env's operations in the single env's order, so world i of a batch is the single env with seed s + i (to the
+   bit on one machine: ``tests/test_batch.py`` checks 1e-9).
 
 Steps 3 and 5 are ``VSWristEnv._begin_step``/``_finish_step`` written over arrays (the "array step"), for every
 batch, one world or many; a task may change the step through its hooks, not by overriding one of the

@@ -10,12 +10,13 @@ call), so the physics of one chunk overlaps the Python of another.
 
 Per world the call does what ``VSWristEnv._advance`` does through ``WristSim`` (and the contact meter of
 ``shared.PeriodMeanForce``), in the same order, so the numbers are the same to the bit: zero the loop-closure
-peak and the contact meter's window; with actuation latency, that many substeps on the previous motor references
-(and the divergence check); write the motor references into ``ctrl``, the period's other calls of ``mj_step``, the divergence check on MuJoCo's NaN warnings (a diverged world is left as MuJoCo reset it,
+peak and the contact meter's window; with actuation latency, that many substeps on the previous motor
+references (and the divergence check); write the motor references into ``ctrl``, the period's other calls of
+``mj_step``, the divergence check on MuJoCo's NaN warnings (a diverged world is left as MuJoCo reset it,
 unsynced, as ``WristSim.step`` raises before its sync), then the sync: ``mj_kinematics`` + ``mj_comPos`` +
 ``mj_comVel`` (``sync_kinematics``) or ``mj_forward`` with the sensors enabled (``WristSim._forward``).
 Then, with a gather plan, it copies what the environment reads after the step (joint positions, the coupler's
-pose and velocity, the loop-closure bodies, sensors: ``VSWristVectorEnv._gather_plan``) into the world's row of
+pose and velocity, the loop-closure bodies, sensors: ``batch_sim.gather_plan``) into the world's row of
 one array, on the world's thread, so that the batch reads every world's simulator in one NumPy array.
 
 An error MuJoCo raises inside a world (``mju_error``) is intercepted as the Python bindings intercept it (a
