@@ -256,6 +256,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from vswrist_gym.cli import run_tool
+    from vswrist_gym.agents.output import run_tool
 
     raise SystemExit(run_tool(main))
