@@ -31,6 +31,7 @@ ENV_IDS = {
     "VSWrist/Insertion-v0": "vswrist_gym.envs.insertion:InsertionEnv",
     "VSWrist/Drill-v0": "vswrist_gym.envs.drill:DrillEnv",
     "VSWrist/Hammer-v0": "vswrist_gym.envs.hammer:HammerEnv",
+    "VSWrist/Throw-v0": "vswrist_gym.envs.throw:ThrowEnv",
 }
 # What an older version fixes over its task's config files (``id_config`` of ``VSWristEnv``; the caller's config
 # still applies on top). The newest version of a task is its config files as they stand. CHANGELOG.md says what

@@ -17,11 +17,14 @@ The rules (observation only):
 * Hammer: moderately soft (``HAMMER_SOFT``) until the swing's reference starts to move, then full stiffness:
   the motors need tens of milliseconds to raise the preload, so raising it from the swing's start makes the
   springs stiffen while they are deflected, which adds energy that the strike takes back.
+* Throw: soft (``THROW_SOFT``) through the wind-up, stiffer (``THROW_STIFF``) from the moment the reference has
+  turned forward and the hand's measured FE rate has risen above ``THROW_TURN`` (the link has nearly stopped
+  winding back, its springs loaded): raising the preload while they are deflected adds energy the throw takes back.
 
-Hammer has no hidden state worth an oracle; its "oracle" column is an optimised open-loop schedule instead:
-``HAMMER_KNOTS`` stiffness commands at fixed times from the swing's start, linear between, optimised with
-scipy (Powell) on training seeds (``--train-seeds``, from ``TRAIN_SEED0``) and evaluated on the probe's
-held-out seeds. ``--headroom`` prints the headroom table of docs/environments.md.
+Hammer and Throw have no hidden state worth an oracle; their "oracle" column is an optimised open-loop schedule
+instead: ``HAMMER_KNOTS`` stiffness commands at fixed times from the swing's start (Throw: ``THROW_KNOTS`` from the
+reference's turn at the end of the wind-up), linear between, optimised with scipy (Powell) on training seeds (from
+``TRAIN_SEED0``) and evaluated on the probe's held-out seeds. ``--headroom`` prints the headroom table of docs/environments.md.
 
 ``--success`` prints instead, per task, the success rate (and mean return) of agents that should not succeed
 next to those that may: uniform random and bang-bang (+-1) actions in the default ``posture_stiffness`` mode
@@ -60,6 +63,11 @@ HOLD_S = 0.5    # s, LoadHold/Drill stay stiff this long after the error last ex
 HAMMER_SOFT = -0.5   # Hammer rule: stiffness command before the swing starts (full stiffness from then)
 HAMMER_KNOTS = (0.0, 0.03, 0.06, 0.09, 0.12, 0.15)  # s after the swing's start: knots of the optimised schedule
 TRAIN_SEED0 = 100    # training seeds of the optimised schedule: TRAIN_SEED0, ... (the probe's start at 1000)
+THROW_SOFT = -1.0    # Throw rule: stiffness command through the wind-up ...
+THROW_STIFF = 0.5    # ... and from the turn on
+THROW_TURN = -10.0   # rad/s, Throw rule: the turn is felt once the reference moves forward and the measured FE rate
+                     # rises above this (the link still winds back, slower: its springs are loaded)
+THROW_KNOTS = (-0.06, -0.03, 0.0, 0.03, 0.06, 0.09)  # s from the reference's turn: knots of Throw's schedule
 
 
 def _slew(state: dict, s: float, dt: float) -> float:
@@ -98,6 +106,14 @@ def adaptive_policy(env):
         elif task == "hammer":
             state["go"] = state.get("go", False) or u._t >= u.tp["swing_start_s"] - 1e-9
             return u.reference_to_action(target, 1.0 if state["go"] else HAMMER_SOFT)
+        elif task == "throw":
+            # the reference has turned forward (its FE grew since the last step), then the hand's FE rate rises
+            prev = state.get("fe")
+            state["turned"] = state.get("turned", False) or (prev is not None and target[1] > prev + 1e-9)
+            state["fe"] = float(target[1])
+            fe_rate = float(obs[sl["posture_rate"]][1])
+            state["go"] = state.get("go", False) or (state["turned"] and fe_rate > THROW_TURN)
+            return u.reference_to_action(target, THROW_STIFF if state["go"] else THROW_SOFT)
         elif task == "impact":
             # stiff in free motion (the heavy tool's sag costs tracking), soft as soon as and for as long as the
             # touch sensor shows a contact, and for IMPACT_SOFT_S after it
@@ -121,7 +137,7 @@ def oracle_policy(env):
     task = u.task
     state = {}
 
-    if task == "hammer":
+    if task in ("hammer", "throw"):
         return schedule_policy(env, optimised_schedule(u.spec.id, u._user_config))
 
     def act(obs):
@@ -149,21 +165,28 @@ def oracle_policy(env):
     return act
 
 
+def schedule_knots(u) -> np.ndarray:
+    """The times (s, episode time) of the open-loop schedule's knots: ``HAMMER_KNOTS`` after Hammer's swing
+    start (``task.swing_start_s``), ``THROW_KNOTS`` after Throw's turn (the reference leaves ``task.fe_back``)."""
+    if u.task == "throw":
+        return np.asarray(THROW_KNOTS) + u._swing_t0
+    return np.asarray(HAMMER_KNOTS) + u.tp["swing_start_s"]
+
+
 def schedule_policy(env, values):
-    """Open-loop stiffness schedule on the task's reference: command ``values[k]`` at ``HAMMER_KNOTS[k]`` after
-    the swing's start (``task.swing_start_s``), linear between, the first before and the last after."""
+    """Open-loop stiffness schedule on the task's reference: command ``values[k]`` at the k-th knot
+    (``schedule_knots``), linear between, the first before and the last after."""
     u = env.unwrapped
     sl = u.obs_slices["target"]
-    times = np.asarray(HAMMER_KNOTS) + u.tp["swing_start_s"]
     values = np.clip(np.asarray(values, dtype=float), -1.0, 1.0)
-    return lambda obs: u.reference_to_action(np.asarray(obs)[sl], float(np.interp(u._t, times, values)))
+    return lambda obs: u.reference_to_action(np.asarray(obs)[sl], float(np.interp(u._t, schedule_knots(u), values)))
 
 
 _SCHEDULES: dict = {}
 
 
 def optimised_schedule(env_id: str, config: dict | None = None, train_seeds: int = 6, maxfev: int = 160) -> tuple:
-    """The open-loop schedule (``HAMMER_KNOTS`` values) that maximises the mean return over ``train_seeds``
+    """The open-loop schedule (one value per knot, ``schedule_knots``) that maximises the mean return over ``train_seeds``
     training episodes (seeds ``TRAIN_SEED0`` ...), by scipy's Powell method from the best constant command,
     at most ``maxfev`` evaluations; cached per (id, config, seeds, maxfev)."""
     import gymnasium as gym
@@ -174,7 +197,7 @@ def optimised_schedule(env_id: str, config: dict | None = None, train_seeds: int
         return _SCHEDULES[key]
     env = gym.make(env_id, config=dict(config or {}))
     seeds = range(TRAIN_SEED0, TRAIN_SEED0 + train_seeds)
-    n = len(HAMMER_KNOTS)
+    n = len(THROW_KNOTS if env.unwrapped.task == "throw" else HAMMER_KNOTS)
 
     def loss(x):
         return -evaluate(env, lambda: schedule_policy(env, x), seeds)[0]
@@ -305,7 +328,7 @@ def headroom_rows(results) -> list[str]:
     rows = []
     for r in results:
         best = r["best_constant"]
-        sched = "optimised" if r["task"] == "Hammer" else "oracle"
+        sched = "optimised" if r["task"] in ("Hammer", "Throw") else "oracle"
         (rm, rse, _), (om, ose, _) = r["paired"]["rule"], r["paired"]["oracle"]
         rows.append(f"| {r['task']} | s = {best:+.1f} | {r['constant'][best][0]:.1f} | {r['adaptive'][0]:.1f} | "
                     f"{rm:+.1f} ({rse:.1f}) | {sched} {r['oracle'][0]:.1f} | {om:+.1f} ({ose:.1f}) |")
@@ -323,7 +346,7 @@ def headroom_json(results, episodes: int, seed0: int) -> dict:
         if gain > 0:
             tasks[r["task"]] = {"headroom": float(gain), "best_constant": float(r["best_constant"]),
                                 "rule": [float(rm), float(rse)], "schedule": [float(om), float(ose)],
-                                "by": "rule" if rm >= om else ("optimised" if r["task"] == "Hammer" else "oracle")}
+                                "by": "rule" if rm >= om else ("optimised" if r["task"] in ("Hammer", "Throw") else "oracle")}
     return {"episodes": episodes, "seed0": seed0, "tasks": tasks}
 
 
