@@ -40,15 +40,20 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, la
     """World i of the batch reproduces gym.make(id) reset with seed s + i, step for step, through short episodes
     (autoresets) and a divergence in one world; physics on 2 threads, through the compiled advance
     (``model.advance_lib``; with latency randomisation, each period's first substeps on the previous motor
-    references), with each chunk's rewards and observations computed while later chunks' physics runs."""
-    # episodes of 25 control steps (Hammer runs at 100 Hz), so that every world resets several times
-    cfg = {"episode_s": 0.25 if env_id == "VSWrist/Hammer-v0" else 0.5,
+    references), with each chunk's rewards and observations computed while later chunks' physics runs; a task
+    that steps its periods itself (Throw: substep by substep near the release) is advanced world by world."""
+    # episodes of 25 control steps (Hammer and Throw run at 100 Hz), so that every world resets several times
+    cfg = {"episode_s": 0.25 if env_id in ("VSWrist/Hammer-v0", "VSWrist/Throw-v0") else 0.5,
            "randomize": {"latency": {"enabled": latency}}}
     for seed in (2, 9):
         venv = make_batch(env_id, config=cfg, threads=2)
+        from vswrist_gym.envs.base import VSWristEnv
+        from vswrist_gym.envs.shared import PeriodMeanForce
         from vswrist_gym.model import advance_lib
 
-        assert (venv.unwrapped.batch_sim.lib is not None) == (advance_lib.load() is not None)
+        own = type(venv.unwrapped.envs[0])._advance_physics not in (VSWristEnv._advance_physics,
+                                                                    PeriodMeanForce._advance_physics)
+        assert (venv.unwrapped.batch_sim.lib is not None) == (advance_lib.load() is not None and not own)
         singles = [gym.make(env_id, config=cfg) for _ in range(N)]
         rng = np.random.default_rng(seed)
         obs, vinfo = venv.reset(seed=seed)

@@ -16,7 +16,8 @@ The hand lets the ball go automatically, as a thrower's hand does at the fastest
 ball's centre has passed the *release plane* in the forward swing (the plane through the ball's centre at FE =
 ``fe_release``, drawn per episode, perpendicular to its path there), at the first substep (1 ms) at which the
 ball's speed stops rising; the release state is the fastest one. The ball then flies free: its flight is a
-closed-form projectile (no contact, no drag) and its mass leaves the hand one substep later. ``info`` holds
+closed-form projectile (no contact, no drag); its mass leaves the hand at the substep boundary after the peak is
+recognised (2 ms after the release state). ``info`` holds
 ``released``, ``release_speed`` (m/s, the ball's speed at release), ``release_time`` (s), ``aim_error`` (rad, the
 angle between the ball's velocity and the swing's plane, the plane the throw is aimed in), ``throw_distance`` (m,
 how far the ball lands horizontally, ``drop_height`` below the release point) and ``rigid_speed`` (m/s, the *rigid
@@ -230,7 +231,7 @@ class ThrowEnv(VSWristEnv):
         m, d = self.model, self.data
         dt = self.sim.timestep
         for k in range(int(round(duration / dt))):
-            if self._mass_due:  # the substep boundary after the release: the ball has gone
+            if self._mass_due:  # the substep boundary after the one that recognised the peak: the ball has gone
                 self._mass_due = False
                 self._set_ball(MASS_GONE)
             self.sim.step(dt, restart_peak=first and k == 0)
