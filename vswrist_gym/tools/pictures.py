@@ -22,8 +22,9 @@ logger = logging.getLogger(__name__)
 
 # The control step at which each task's object is in view and in use: the tool on the surface (Polish), against
 # the obstacle (Impact), in the hole (Insertion), the drill engaged (Drill), the load hanging (LoadHold) (50 Hz);
-# the head mid-swing (Hammer, 100 Hz).
-PICTURE_STEP = {"LoadHold": 100, "Polish": 75, "Impact": 90, "Insertion": 120, "Drill": 75, "Hammer": 16}
+# the head mid-swing (Hammer, 100 Hz); the ball about to leave the hand (Throw, 100 Hz).
+PICTURE_STEP = {"LoadHold": 100, "Polish": 75, "Impact": 90, "Insertion": 120, "Drill": 75, "Hammer": 16,
+                "Throw": 26}
 
 
 def frame(task: str, step: int | None = None, seed: int = 0, width: int | None = None,

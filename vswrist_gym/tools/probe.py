@@ -421,6 +421,54 @@ def success_probe(task: str, episodes: int, seed0: int = 1000, config: dict | No
     return out
 
 
+TRIM_LEVELS = (-1.0, 0.0, 1.0)  # residual FE actions of the open-loop posture trims (x residual.posture_scale rad)
+TRIM_S = 0.08  # s: the trims' middle segment, from the schedule's origin (Hammer's swing start, Throw's turn)
+
+
+def trim_policy(env, levels):
+    """Open-loop posture trim in mode ``residual`` (the stiffness at the baseline's ``residual.stiffness_nominal``):
+    FE residual ``levels[0]`` before the schedule's origin (``schedule_knots``' zero: Hammer's swing start, Throw's
+    turn), ``levels[1]`` for ``TRIM_S`` from it, ``levels[2]`` after."""
+    u = env.unwrapped
+    origin = (THROW_KNOTS if u.task == "throw" else HAMMER_KNOTS)[0]
+
+    def act(obs):
+        t0 = float(schedule_knots(u)[0]) - origin  # the episode's (made at its reset, after this factory ran)
+        a = np.zeros(env.action_space.shape, dtype=np.float32)
+        a[1] = levels[0] if u._t < t0 else (levels[1] if u._t < t0 + TRIM_S else levels[2])
+        return a
+    return act
+
+
+def posture_trims(task: str, episodes: int, seed0: int = 1000, config: dict | None = None,
+                  train_seeds: int = 8) -> dict:
+    """Can a posture trim stand in for the stiffness? At the task's baseline stiffness (its best constant,
+    ``residual.stiffness_nominal``), every open-loop FE trim of three segments (``trim_policy``, levels
+    ``TRIM_LEVELS``) on ``train_seeds`` training episodes (from ``TRAIN_SEED0``); the best one's paired difference
+    to the zero trim on the held-out episodes ``seed0 ...``: (mean, standard error), with its levels. Hammer and
+    Throw only (their schedules have an origin in time)."""
+    import itertools
+
+    import gymnasium as gym
+
+    import vswrist_gym  # noqa: F401
+
+    if task not in ("Hammer", "Throw"):
+        raise ValueError(f"posture trims are defined for Hammer and Throw, not {task}")
+    env = gym.make(LATEST[task], config={**(config or {}), "action_mode": "residual"})
+    train = range(TRAIN_SEED0, TRAIN_SEED0 + train_seeds)
+    scores = {lv: evaluate(env, lambda lv=lv: trim_policy(env, lv), train)[0]
+              for lv in itertools.product(TRIM_LEVELS, repeat=3)}
+    best = max(scores, key=scores.get)
+    held = range(seed0, seed0 + episodes)
+    zero, trim = [], []
+    evaluate(env, lambda: trim_policy(env, (0.0, 0.0, 0.0)), held, returns=zero)
+    evaluate(env, lambda: trim_policy(env, best), held, returns=trim)
+    env.close()
+    d = np.array(trim) - np.array(zero)
+    return {"levels": best, "paired": (float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d))))}
+
+
 def print_success(tasks, episodes: int, seed0: int, config: dict) -> None:
     import gymnasium as gym
 
@@ -475,6 +523,9 @@ def main(argv: list[str] | None = None) -> int:
                          "with --variant V, the 'headroom-V' block")
     ap.add_argument("--headroom-json", default=None, metavar="PATH",
                     help="with --headroom: also write the table as JSON for `vswrist aggregate --headroom`")
+    ap.add_argument("--trims", action="store_true",
+                    help="print instead, for Hammer and Throw, the best open-loop posture trim at the best constant "
+                         "stiffness (chosen on training seeds) against no trim, on the held-out episodes")
     args = ap.parse_args(argv)
     config = {} if args.energy_weight is None else {"reward": {"energy": args.energy_weight}}
     if args.config is not None:
@@ -492,6 +543,15 @@ def main(argv: list[str] | None = None) -> int:
             configs = {t: merge(variant_config(t, args.variant), config) for t in args.tasks}
         except EnvConfigError as exc:
             ap.error(str(exc))
+    if args.trims:
+        print(f"open-loop posture trims (residual FE levels before / {TRIM_S:g} s from / after the origin) at the "
+              f"baseline stiffness, best of {len(TRIM_LEVELS) ** 3} on training seeds from {TRAIN_SEED0}; paired "
+              f"against no trim over {args.episodes} episodes (seeds from {args.seed0})")
+        for t in args.tasks:
+            r = posture_trims(t, args.episodes, seed0=args.seed0, config=configs[t])
+            m, se = r["paired"]
+            print(f"{t:<11} trim {tuple(r['levels'])}  {m:+.1f} ({se:.1f})")
+        return 0
     if args.success:
         if args.variant is not None:
             ap.error("--variant is not supported with --success")
