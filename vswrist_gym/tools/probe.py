@@ -285,8 +285,12 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
         def end(env_, info):  # Hammer: the strike's normal speed (nan: no strike) and the rigid bound, m/s
             if "impact_speed" in info:
                 speeds.append(info["impact_speed"] if info["struck"] else float("nan"))
-                if label == "rule":
-                    rigid.append(info["rigid_speed"])
+            elif "release_speed" in info:  # Throw: the release speed (nan: no release)
+                speeds.append(info["release_speed"] if info["released"] else float("nan"))
+            else:
+                return
+            if label == "rule":
+                rigid.append(info["rigid_speed"])
         return evaluate(env, factory, seeds, out["terms"].setdefault(label, {}), out["returns"].setdefault(label, []),
                         on_end=end)
 
@@ -581,7 +585,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{agent:<8}" + "".join(f"{t[n]:>14.1f}" for n in names))
     for r in results:
         if "impact_speed" in r:
-            print(f"\n{r['task']}: normal strike speed (held-out seeds from {args.seed0})")
+            what = "release speed" if r["task"] == "Throw" else "normal strike speed"
+            print(f"\n{r['task']}: {what} (held-out seeds from {args.seed0}; Throw: strikes = releases)")
             print("\n".join(hammer_speed_lines(r)))
     if args.headroom:
         table = HEADROOM_HEADER + "\n" + "\n".join(headroom_rows(results))
