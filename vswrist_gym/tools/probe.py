@@ -17,7 +17,7 @@ The rules (observation only):
 * Hammer: moderately soft (``HAMMER_SOFT``) until the swing's reference starts to move, then full stiffness:
   the motors need tens of milliseconds to raise the preload, so raising it from the swing's start makes the
   springs stiffen while they are deflected, which adds energy that the strike takes back.
-* Throw: soft (``THROW_SOFT``) through the wind-up, stiffer (``THROW_STIFF``) from the step the reference turns
+* Throw: soft (``THROW_SOFT``) through the wind-up, stiff (``THROW_STIFF``) from the step the reference turns
   forward (the link, lagging, still winds back and loads the springs): raising the preload while they are
   deflected adds energy that the throw takes back.
 
@@ -64,7 +64,7 @@ HAMMER_SOFT = -0.5   # Hammer rule: stiffness command before the swing starts (f
 HAMMER_KNOTS = (0.0, 0.03, 0.06, 0.09, 0.12, 0.15)  # s after the swing's start: knots of the optimised schedule
 TRAIN_SEED0 = 100    # training seeds of the optimised schedule: TRAIN_SEED0, ... (the probe's start at 1000)
 THROW_SOFT = -1.0    # Throw rule: stiffness command through the wind-up ...
-THROW_STIFF = 0.75   # ... and from the reference's turn on (chosen on training seeds 100-111 among 0.25, 0.5, 0.75, 1)
+THROW_STIFF = 1.0    # ... and from the reference's turn on (chosen on training seeds 100-111 among 0.5, 0.75, 1)
 THROW_KNOTS = (-0.06, -0.03, 0.0, 0.03, 0.06, 0.09)  # s from the reference's turn: knots of Throw's schedule
 
 
@@ -425,7 +425,7 @@ def success_probe(task: str, episodes: int, seed0: int = 1000, config: dict | No
     return out
 
 
-TRIM_LEVELS = (-1.0, 0.0, 1.0)  # residual FE actions of the open-loop posture trims (x residual.posture_scale rad)
+TRIM_LEVELS = (-1.0, -0.5, 0.0, 0.5, 1.0)  # residual FE actions of the posture trims (x residual.posture_scale rad)
 TRIM_S = 0.08  # s: the trims' middle segment, from the schedule's origin (Hammer's swing start, Throw's turn)
 
 
@@ -448,7 +448,7 @@ def posture_trims(task: str, episodes: int, seed0: int = 1000, config: dict | No
                   train_seeds: int = 8) -> dict:
     """Can a posture trim stand in for the stiffness? At the task's baseline stiffness (its best constant,
     ``residual.stiffness_nominal``), every open-loop FE trim of three segments (``trim_policy``, levels
-    ``TRIM_LEVELS``) on ``train_seeds`` training episodes (from ``TRAIN_SEED0``); the best one's paired difference
+    ``TRIM_LEVELS``, 125 trims) on ``train_seeds`` training episodes (from ``TRAIN_SEED0``); the best one's paired difference
     to the zero trim on the held-out episodes ``seed0 ...``: (mean, standard error), with its levels. Hammer and
     Throw only (their schedules have an origin in time)."""
     import itertools
