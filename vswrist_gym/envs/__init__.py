@@ -7,7 +7,7 @@
 * ``actions``: the four action modes and their command maps; ``observations``: the named terms, bounds, noise;
   ``randomization``: domain randomisation at reset; ``rewards``: common reward terms and ``info`` metrics;
 * ``shared``: what tasks share (scene helpers, hand geometry, time profiles); ``config``: the YAML settings;
-* one module per task (``load_hold``, ``polish``, ``impact``, ``insertion``, ``drill``, ``hammer``).
+* one module per task (``load_hold``, ``polish``, ``impact``, ``insertion``, ``drill``, ``hammer``, ``throw``).
 
 Make them with ``gymnasium.make("VSWrist/<Task>-vN")`` or ``gymnasium.make_vec(id, N)`` after
 ``import vswrist_gym``.

@@ -151,7 +151,7 @@ class ThrowEnv(VSWristEnv):
         self._fe_release = float(rng.uniform(*tp["fe_release"]))
         self._ps = 0.0
         self._set_ball(self._ball_mass)
-        self._release = None       # (time s, speed along the throw direction m/s, aim error rad, distance m)
+        self._release = None       # (time s, speed m/s, aim error rad, distance m) of the release
         self._release_seen = False  # whether the step that saw the release has paid it
         self._mass_due = False      # the ball has left: its mass leaves the hand at the next substep boundary
         return np.array([self._rud, tp["fe_start"]]), self._ps, -1.0
