@@ -20,7 +20,7 @@ CONFIGS = PACKAGE / "configs"
 # Written out here, not read from the code: what a package user needs, by name.
 PRESETS = {"paper.yaml", "paper_fine.yaml", "paper_identified.yaml", "paper_knm.yaml", "paper_knm_fine.yaml"}
 ALGORITHMS = {"ppo.yaml", "sac.yaml", "ppo_lstm.yaml"}
-TASKS = {"defaults.yaml", "drill.yaml", "hammer.yaml", "impact.yaml", "insertion.yaml", "load_hold.yaml",
+TASKS = {"defaults.yaml", "drill.yaml", "hammer.yaml", "impact.yaml", "insertion.yaml", "load_hold.yaml", "throw.yaml",
          "polish.yaml"}
 TASK_VARIANTS = {"paper_drill.yaml", "paper_impact.yaml", "paper_insertion.yaml", "paper_load_hold.yaml",
                  "paper_polish.yaml"}
