@@ -30,6 +30,7 @@ COMMANDS = {
     "export": ("vswrist_gym.model.export:main", "write the wrist as a self-contained MJCF (MuJoCo plugin)"),
     "sweep": ("vswrist_gym.sweep.cli:main", "run a sweep file (grid or hyperparameter search) on Ray"),
     "track": ("vswrist_gym.tools.track:main", "a track's runs (with --run) and its results table"),
+    "gate": ("vswrist_gym.tools.gate:main", "validity gate per task: headroom and necessity of the stiffness"),
 }
 
 # The commands that cannot start without the [train] extra: they check it before they write anything.

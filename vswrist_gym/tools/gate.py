@@ -1,0 +1,423 @@
+"""The validity gate: does a task need a variable stiffness? Headroom and necessity under the benchmark protocol.
+
+``vswrist gate [--tasks ...] [--stage headroom|necessity|all] [--write docs/environments.md]`` measures, per task:
+
+* **Selection, on tuning episodes only** (``TUNING_EVAL_SEEDS`` x ``EPISODES_PER_SEED``, ``protocol.reset_seed``):
+  the best constant stiffness command among ``probe.CONSTANT_COMMANDS`` (the reference agent at that command), and
+  the soft and stiff levels (``RULE_LEVELS``) of the task's observation-only rule (``probe.adaptive_policy``
+  mapped onto them by ``probe.within``), each by the highest mean return. ``select`` refuses any other seed.
+* **Headroom, on held-out episodes** (``HELDOUT_EVAL_SEEDS`` x ``EPISODES_PER_SEED`` = 100): the selected rule
+  minus the selected constant, episode by episode; its mean and the standard error of that mean. It passes when
+  the mean is at least ``HEADROOM_SE`` standard errors above zero.
+* **Necessity, on the same held-out episodes**: a posture-only PPO (the packaged entry of ``configs/ppo.yaml`` in
+  the ``residual`` action mode with ``stiffness_scale`` 0, the stiffness held at the selected constant, the posture
+  residual ``POSTURE_SCALE`` rad) trained for ``BUDGET`` steps on each of ``NECESSITY_SEEDS``; per training seed,
+  its mean paired gain over the constant as a share of the headroom; the Student-t 95 % interval of that share
+  over the training seeds. It passes when the interval's upper end is below ``NECESSITY_SHARE``: a posture trim
+  cannot stand in for the stiffness.
+
+A task passes the gate when both pass. Each task's results go to ``OUT/<Task>-vN.json`` as they come (selection,
+headroom, every training seed), so a stopped run resumes where it stopped; the trained runs go to
+``RUNS_DIR/<Task>-vN/seed<k>`` (a half-trained run resumes from its checkpoint). ``--write`` rebuilds the
+``gate`` block of docs/environments.md from the JSON files, computing nothing that is missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vswrist_gym.agents.protocol import (BENCHMARK_TRAIN_SEEDS, HELDOUT_EVAL_SEEDS, TUNING_EVAL_SEEDS, mean_ci,
+                                         reset_seed)
+from vswrist_gym.tools.probe import CONSTANT_COMMANDS
+
+EPISODES_PER_SEED = 10        # episodes per evaluation seed: 10 seeds x 10 = 100 episodes for selection and report
+RULE_LEVELS = tuple((lo, hi) for lo in CONSTANT_COMMANDS for hi in CONSTANT_COMMANDS if lo < hi)  # (soft, stiff)
+HEADROOM_SE = 5.0             # headroom passes at a paired mean >= this many paired standard errors
+NECESSITY_SHARE = 0.5         # necessity passes when the share's 95 % upper bound is below this
+NECESSITY_SEEDS = BENCHMARK_TRAIN_SEEDS[:3]   # training seeds of the posture-only PPO
+BUDGET = 80_000               # env steps per posture-only PPO run: the packaged entries' n_timesteps
+POSTURE_SCALE = 0.15          # rad: the posture residual of the packaged full-track entries (configs/ppo.yaml)
+LEVEL = 0.95                  # confidence level of the share's interval
+
+
+class GateError(ValueError):
+    """Bad input or a stored result that does not match the protocol; the message names the field."""
+
+
+# ------------------------------------------------------------------------------------------------ statistics
+
+
+def paired(a, b) -> dict:
+    """Episode-by-episode difference a - b: its mean, the standard error of the mean (sample s.d. / sqrt(n)),
+    n, and the share of episodes where a is higher."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.shape != b.shape or a.ndim != 1 or len(a) < 2:
+        raise GateError(f"paired returns need two equal-length lists of at least 2 episodes, got {a.shape} and "
+                        f"{b.shape}")
+    d = a - b
+    return {"mean": float(d.mean()), "se": float(d.std(ddof=1) / math.sqrt(len(d))), "n": int(len(d)),
+            "wins": float(np.mean(d > 0.0))}
+
+
+def headroom_passes(diff: dict, k: float = HEADROOM_SE) -> bool:
+    """A paired mean at least k standard errors above zero (a zero standard error needs a positive mean)."""
+    return diff["mean"] > 0.0 and diff["mean"] >= k * diff["se"]
+
+
+def share_interval(gains, headroom: float, level: float = LEVEL) -> dict:
+    """Each training seed's paired gain over the constant as a share of the headroom, and the Student-t interval of
+    the mean share over the seeds (``protocol.mean_ci``); NaN where the headroom is not positive (no share)."""
+    if not headroom > 0.0:
+        return {"shares": [math.nan] * len(gains), "mean": math.nan, "low": math.nan, "high": math.nan,
+                "n": len(gains)}
+    shares = [float(g) / headroom for g in gains]
+    return {"shares": shares, **mean_ci(shares, level=level)}
+
+
+def necessity_passes(share: dict, limit: float = NECESSITY_SHARE) -> bool:
+    """The share's upper bound below ``limit`` (an interval needs two training seeds at least)."""
+    return share["n"] >= 2 and not math.isnan(share["high"]) and share["high"] < limit
+
+
+# ------------------------------------------------------------------------------------------------ episodes
+
+
+def check_tuning_seeds(seeds) -> list[int]:
+    """Selection reads tuning evaluation seeds only: any other seed (the held-out ones above all) is refused."""
+    seeds = list(seeds)
+    bad = [s for s in seeds if s not in TUNING_EVAL_SEEDS]
+    if not seeds or bad:
+        raise GateError(f"selection seeds must be tuning evaluation seeds ({TUNING_EVAL_SEEDS[0]}-"
+                        f"{TUNING_EVAL_SEEDS[-1]}, protocol.TUNING_EVAL_SEEDS), got {bad or 'none'}")
+    return seeds
+
+
+def check_heldout_seeds(seeds) -> list[int]:
+    seeds = list(seeds)
+    bad = [s for s in seeds if s not in HELDOUT_EVAL_SEEDS]
+    if not seeds or bad:
+        raise GateError(f"report seeds must be held-out evaluation seeds ({HELDOUT_EVAL_SEEDS[0]}-"
+                        f"{HELDOUT_EVAL_SEEDS[-1]}, protocol.HELDOUT_EVAL_SEEDS), got {bad or 'none'}")
+    return seeds
+
+
+class _PolicyAgent:
+    """A stateful function obs -> action (the probe's rules) behind SB3's ``predict``, rebuilt at every episode
+    start so that no state leaks from one episode into the next."""
+
+    def __init__(self, build):
+        self.build, self.policy = build, None
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        if self.policy is None or (episode_start is not None and bool(np.asarray(episode_start).reshape(-1)[0])):
+            self.policy = self.build()
+        return np.asarray(self.policy(obs), dtype=np.float32), None
+
+
+def constant_agent(c: float):
+    from vswrist_gym.tools.probe import constant_policy
+
+    return lambda env: _PolicyAgent(lambda: constant_policy(env, c))
+
+
+def rule_agent(levels: tuple[float, float]):
+    from vswrist_gym.tools.probe import adaptive_policy, within
+
+    return lambda env: _PolicyAgent(lambda: within(adaptive_policy(env), tuple(levels)))
+
+
+def episode_returns(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | None = None) -> list[float]:
+    """Returns of the protocol's episodes (``protocol.evaluate``, one environment, episode after episode: the rules
+    read one environment's state), in the order seed by seed, episode by episode."""
+    from vswrist_gym.agents.protocol import evaluate
+
+    records, _ = evaluate(env_id, make_agent, seeds, episodes, env_kwargs=env_kwargs, batch=False)
+    return [float(r["return"]) for r in records]
+
+
+def select(env_id: str, seeds=TUNING_EVAL_SEEDS, episodes: int = EPISODES_PER_SEED, config: dict | None = None,
+           runner=episode_returns) -> dict:
+    """The best constant command and the rule's best (soft, stiff) levels, by mean return on tuning episodes only
+    (any other seed is refused before an episode runs)."""
+    seeds = check_tuning_seeds(seeds)
+    kwargs = {"config": dict(config or {})}
+    constants = {c: float(np.mean(runner(env_id, constant_agent(c), seeds, episodes, kwargs)))
+                 for c in CONSTANT_COMMANDS}
+    rules = {lv: float(np.mean(runner(env_id, rule_agent(lv), seeds, episodes, kwargs))) for lv in RULE_LEVELS}
+    best = max(constants, key=constants.get)   # first of equals, in CONSTANT_COMMANDS order
+    levels = max(rules, key=rules.get)
+    return {"seeds": seeds, "episodes_per_seed": episodes,
+            "constants": {f"{c:+.1f}": m for c, m in constants.items()},
+            "rules": {f"{lo:+.1f},{hi:+.1f}": m for (lo, hi), m in rules.items()},
+            "best_constant": float(best), "rule_levels": [float(levels[0]), float(levels[1])]}
+
+
+def headroom(env_id: str, selection: dict, seeds=HELDOUT_EVAL_SEEDS, episodes: int = EPISODES_PER_SEED,
+             config: dict | None = None, runner=episode_returns) -> dict:
+    """The selected rule against the selected constant on held-out episodes, paired; every other constant too,
+    for the record (nothing is chosen from them)."""
+    seeds = check_heldout_seeds(seeds)
+    kwargs = {"config": dict(config or {})}
+    constants = {f"{c:+.1f}": runner(env_id, constant_agent(c), seeds, episodes, kwargs) for c in CONSTANT_COMMANDS}
+    rule = runner(env_id, rule_agent(tuple(selection["rule_levels"])), seeds, episodes, kwargs)
+    best = constants[f"{selection['best_constant']:+.1f}"]
+    diff = paired(rule, best)
+    return {"seeds": seeds, "episodes_per_seed": episodes,
+            "reset_seeds": [reset_seed(s, i) for s in seeds for i in range(episodes)],
+            "returns": {"constant": constants, "rule": rule}, "rule_minus_constant": diff,
+            "z": diff["mean"] / diff["se"] if diff["se"] > 0 else math.inf,
+            "passes": headroom_passes(diff)}
+
+
+# ------------------------------------------------------------------------------------------------ necessity
+
+
+def posture_only_entry(env_id: str, best_constant: float, budget: int = BUDGET) -> dict:
+    """The packaged PPO entry of ``env_id`` (its own or, for a version without one, its task's newest entry) in the
+    residual mode with the stiffness fixed at ``best_constant`` and a ``POSTURE_SCALE`` posture residual, as a
+    hyperparameter file's content (the entry and its ``vswrist:`` run settings)."""
+    import copy
+
+    from vswrist_gym.agents.hparams import default_config_path, read_file
+
+    data, section = read_file(default_config_path("ppo"))
+    source = env_id if env_id in data else None
+    if source is None:
+        short = env_id.split("/")[-1].rsplit("-v", 1)[0]
+        found = sorted(k for k in data if k.split("/")[-1].rsplit("-v", 1)[0] == short)
+        if not found:
+            raise GateError(f"configs/ppo.yaml has no entry for {env_id} or another version of it")
+        source = found[-1]
+    entry = copy.deepcopy(data[source])
+    entry["n_timesteps"] = int(budget)
+    entry["env_kwargs"] = {**entry.get("env_kwargs", {}), "action_mode": "residual",
+                           "residual": {"posture_scale": POSTURE_SCALE, "stiffness_scale": 0.0,
+                                        "stiffness_nominal": float(best_constant)}}
+    return {env_id: entry, "vswrist": {env_id: dict(section.get(source, {}))}}
+
+
+def train_posture_only(env_id: str, best_constant: float, seed: int, runs_dir: Path, budget: int = BUDGET,
+                       log=print) -> Path:
+    """Train (or finish) one posture-only PPO run; returns its run directory."""
+    import yaml
+
+    from vswrist_gym.agents.train import train
+
+    run_dir = Path(runs_dir) / env_id.split("/")[-1] / f"seed{seed}"
+    if (run_dir / "model.zip").is_file():
+        return run_dir
+    cfg_path = Path(runs_dir) / env_id.split("/")[-1] / "posture_only_ppo.yaml"
+    cfg_path.parent.mkdir(parents=True, exist_ok=True)
+    cfg_path.write_text(yaml.safe_dump(posture_only_entry(env_id, best_constant, budget), sort_keys=False))
+    resume = (run_dir / "config.yaml").is_file()
+    train(env_id, "ppo", run_dir, config=None if resume else cfg_path, timesteps=budget, seed=seed, resume=resume,
+          progress=False, log=log)
+    return run_dir
+
+
+def trained_returns(run_dir: Path, env_id: str, seeds=HELDOUT_EVAL_SEEDS,
+                    episodes: int = EPISODES_PER_SEED) -> list[float]:
+    from vswrist_gym.agents.evaluate import AgentSpec
+
+    spec = AgentSpec(str(run_dir), checkpoint="final")
+    spec.check_task(env_id)
+    return episode_returns(env_id, spec.make, check_heldout_seeds(seeds), episodes, spec.env_kwargs)
+
+
+def necessity_summary(doc: dict) -> dict:
+    """Per training seed the posture-only PPO's paired gain over the constant; the share of the headroom and its
+    interval over the seeds; the verdict."""
+    hr = doc["headroom"]
+    const = hr["returns"]["constant"][f"{doc['selection']['best_constant']:+.1f}"]
+    runs = doc["necessity"]["runs"]
+    seeds = [s for s in doc["necessity"]["seeds"] if str(s) in runs]
+    gains = {s: paired(runs[str(s)]["returns"], const) for s in seeds}
+    share = share_interval([gains[s]["mean"] for s in seeds], hr["rule_minus_constant"]["mean"])
+    complete = len(seeds) == len(doc["necessity"]["seeds"])
+    return {"gains": {str(s): g for s, g in gains.items()}, "share": share, "complete": complete,
+            "passes": complete and necessity_passes(share)}
+
+
+# ------------------------------------------------------------------------------------------------ one task
+
+
+def protocol_block(budget: int = BUDGET) -> dict:
+    return {"tuning_eval_seeds": list(TUNING_EVAL_SEEDS), "heldout_eval_seeds": list(HELDOUT_EVAL_SEEDS),
+            "episodes_per_seed": EPISODES_PER_SEED, "constants": list(CONSTANT_COMMANDS),
+            "rule_levels": [list(lv) for lv in RULE_LEVELS], "headroom_se": HEADROOM_SE,
+            "necessity_share": NECESSITY_SHARE, "necessity_seeds": list(NECESSITY_SEEDS), "budget": int(budget),
+            "posture_scale": POSTURE_SCALE, "level": LEVEL}
+
+
+def _stamp(doc: dict, stage: str) -> None:
+    doc.setdefault("made", {})[stage] = {
+        "utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M"),
+        "machine": f"{platform.node()}, {platform.machine()}, {__import__('os').cpu_count()} cores"}
+
+
+def _save(path: Path, doc: dict) -> None:
+    from vswrist_gym.agents.fileio import atomic_write_text
+    from vswrist_gym.agents.protocol import json_safe
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, json.dumps(json_safe(doc), indent=1) + "\n")
+
+
+def result_path(out: Path, env_id: str) -> Path:
+    return Path(out) / f"{env_id.split('/')[-1]}.json"
+
+
+def run_task(env_id: str, out: Path, runs_dir: Path, stage: str = "all", budget: int = BUDGET,
+             command: str = "", log=print) -> dict:
+    """Selection, headroom and (``stage`` all or necessity) necessity of one task, each saved as it is done and
+    skipped when already in OUT/<Task>-vN.json."""
+    path = result_path(out, env_id)
+    doc = json.loads(path.read_text()) if path.is_file() else {"task": env_id, "protocol": protocol_block(budget)}
+    if doc["protocol"] != protocol_block(budget):
+        raise GateError(f"{path} was made under another protocol ({doc['protocol']}); move it away to start over")
+    if command:
+        doc.setdefault("commands", [])
+        if command not in doc["commands"]:
+            doc["commands"].append(command)
+    if "selection" not in doc:
+        t0 = time.time()
+        doc["selection"] = select(env_id)
+        _stamp(doc, "selection")
+        _save(path, doc)
+        log(f"{env_id}: selected s = {doc['selection']['best_constant']:+.1f}, rule levels "
+            f"{doc['selection']['rule_levels']} on tuning episodes ({time.time() - t0:.0f} s)")
+    if "headroom" not in doc:
+        t0 = time.time()
+        doc["headroom"] = headroom(env_id, doc["selection"])
+        _stamp(doc, "headroom")
+        _save(path, doc)
+    d = doc["headroom"]["rule_minus_constant"]
+    log(f"{env_id}: headroom {d['mean']:+.2f} (s.e. {d['se']:.2f}) on held-out episodes: "
+        f"{'passes' if doc['headroom']['passes'] else 'fails'}")
+    if stage == "headroom":
+        return doc
+    nec = doc.setdefault("necessity", {"seeds": list(NECESSITY_SEEDS), "budget": int(budget), "runs": {}})
+    for s in NECESSITY_SEEDS:
+        if str(s) in nec["runs"]:
+            continue
+        t0 = time.time()
+        run_dir = train_posture_only(env_id, doc["selection"]["best_constant"], s, runs_dir, budget, log=log)
+        returns = trained_returns(run_dir, env_id)
+        nec["runs"][str(s)] = {"run_dir": str(run_dir), "returns": returns, "seconds": round(time.time() - t0, 1)}
+        nec["summary"] = necessity_summary(doc)
+        _stamp(doc, f"necessity_seed{s}")
+        _save(path, doc)
+        g = nec["summary"]["gains"][str(s)]
+        log(f"{env_id}: posture-only PPO seed {s}: {g['mean']:+.2f} (s.e. {g['se']:.2f}) over the constant")
+    nec["summary"] = necessity_summary(doc)
+    _save(path, doc)
+    sh = nec["summary"]["share"]
+    log(f"{env_id}: share of the headroom {sh['mean']:+.2f} [{sh['low']:+.2f}, {sh['high']:+.2f}]: necessity "
+        f"{'passes' if nec['summary']['passes'] else 'fails'}")
+    return doc
+
+
+# ------------------------------------------------------------------------------------------------ the table
+
+
+GATE_HEADER = ("| task | best constant | rule levels (soft, stiff) | constant return | rule - constant (s.e.) "
+               "| z | headroom | posture-only PPO gain per seed | share of headroom [95 %] | necessity | gate |\n"
+               "|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def gate_row(doc: dict) -> str:
+    sel, hr = doc["selection"], doc.get("headroom")
+    name = f"`{doc['task']}`"
+    if hr is None:
+        return f"| {name} | s = {sel['best_constant']:+.1f} | {sel['rule_levels']} | | | | not measured | | | | |"
+    d = hr["rule_minus_constant"]
+    const = float(np.mean(hr["returns"]["constant"][f"{sel['best_constant']:+.1f}"]))
+    lo, hi = sel["rule_levels"]
+    cells = [name, f"s = {sel['best_constant']:+.1f}", f"{lo:+.1f}, {hi:+.1f}", f"{const:.1f}",
+             f"{d['mean']:+.1f} ({d['se']:.1f})", f"{hr['z']:.1f}", "**pass**" if hr["passes"] else "fail"]
+    summary = (doc.get("necessity") or {}).get("summary")
+    if summary is None:
+        cells += ["", "", "not measured"]
+    else:
+        gains = ", ".join(f"{g['mean']:+.1f}" for g in summary["gains"].values())
+        sh = summary["share"]
+        share = "n/a (no headroom)" if math.isnan(sh["mean"]) else \
+            f"{sh['mean']:+.2f} [{sh['low']:+.2f}, {sh['high']:+.2f}]"
+        verdict = "**pass**" if summary["passes"] else ("incomplete" if not summary["complete"] else "fail")
+        cells += [gains, share, verdict]
+    gate = "**pass**" if hr["passes"] and summary is not None and summary["passes"] else "fail"
+    if summary is not None and not summary["complete"] and hr["passes"]:
+        gate = "pending"
+    cells.append(gate)
+    return "| " + " | ".join(cells) + " |"
+
+
+def gate_table(docs: list[dict]) -> str:
+    made = sorted(v["utc"] for d in docs for v in d.get("made", {}).values())
+    machines = sorted({v["machine"] for d in docs for v in d.get("made", {}).values()})
+    cmds = sorted({c for d in docs for c in d.get("commands", [])})
+    lines = [GATE_HEADER] + [gate_row(d) for d in docs]
+    lines += ["", f"Made by {'; '.join(f'`{c}`' for c in cmds) or '`vswrist gate`'}, {made[0] if made else '?'} to "
+              f"{made[-1] if made else '?'} UTC on {'; '.join(machines) or '?'} (other jobs sharing its cores; "
+              f"returns do not depend on the load)."]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from vswrist_gym import TASKS, resolve_id
+
+    ap = argparse.ArgumentParser(prog="vswrist gate", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=resolve_id,
+                    help=f"short names (the newest version) or full ids (default: {' '.join(TASKS)})")
+    ap.add_argument("--stage", choices=("headroom", "necessity", "all"), default="all",
+                    help="headroom: selection and headroom only; necessity and all: also the posture-only PPO runs")
+    ap.add_argument("--out", default="experiments/gate", help="folder of the per-task JSON results")
+    ap.add_argument("--runs-dir", default="runs/gate", help="folder of the posture-only PPO runs (git-ignored)")
+    ap.add_argument("--budget", type=int, default=BUDGET, help="env steps per posture-only PPO run")
+    ap.add_argument("--write", default=None, metavar="PATH",
+                    help="rewrite the 'gate' generated block of PATH (docs/environments.md) from the JSON files")
+    ap.add_argument("--table-only", action="store_true", help="compute nothing: print (and --write) the table")
+    args = ap.parse_args(argv)
+    if args.budget < 1:
+        ap.error(f"--budget must be a positive number of env steps, got {args.budget}")
+    ids = list(dict.fromkeys(args.tasks))
+    out = Path(args.out)
+    command = "vswrist gate " + shlex.join(argv if argv is not None else sys.argv[1:])
+    from vswrist_gym.agents.procs import limit_threads
+
+    limit_threads(1)
+    if not args.table_only:
+        for env_id in ids:
+            try:
+                run_task(env_id, out, Path(args.runs_dir), stage=args.stage, budget=args.budget, command=command)
+            except GateError as exc:
+                print(f"vswrist gate: {exc}", file=sys.stderr)
+                return 2
+    docs = [json.loads(result_path(out, i).read_text()) for i in ids if result_path(out, i).is_file()]
+    docs = [d for d in docs if "selection" in d]
+    if not docs:
+        print(f"vswrist gate: no results in {out} for {' '.join(ids)}", file=sys.stderr)
+        return 2
+    table = gate_table(docs)
+    print(table)
+    if args.write:
+        from vswrist_gym.tools.table import update
+
+        path = Path(args.write)
+        path.write_text(update(path.read_text(), {"gate": table}))
+        print(f"{path}: gate block updated")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
