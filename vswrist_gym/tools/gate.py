@@ -390,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.budget < 1:
         ap.error(f"--budget must be a positive number of env steps, got {args.budget}")
-    ids = list(dict.fromkeys(args.tasks))
+    ids = list(dict.fromkeys(resolve_id(t) for t in args.tasks))  # argparse leaves a list default unconverted
     out = Path(args.out)
     command = "vswrist gate " + shlex.join(argv if argv is not None else sys.argv[1:])
     from vswrist_gym.agents.procs import limit_threads
@@ -399,7 +399,8 @@ def main(argv: list[str] | None = None) -> int:
     if not args.table_only:
         for env_id in ids:
             try:
-                run_task(env_id, out, Path(args.runs_dir), stage=args.stage, budget=args.budget, command=command)
+                run_task(env_id, out, Path(args.runs_dir), stage=args.stage, budget=args.budget, command=command,
+                         log=lambda *a: print(*a, flush=True))  # a log redirected to a file shows progress
             except GateError as exc:
                 print(f"vswrist gate: {exc}", file=sys.stderr)
                 return 2
