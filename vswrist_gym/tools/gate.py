@@ -130,10 +130,32 @@ def constant_agent(c: float):
     return lambda env: _PolicyAgent(lambda: constant_policy(env, c))
 
 
-def rule_agent(levels: tuple[float, float]):
-    from vswrist_gym.tools.probe import adaptive_policy, within
+CUE_TERMS = ("load_cue", "engage_cue")   # LoadHold-v1, Drill-v1: a load or drill announced ahead of its onset
 
-    return lambda env: _PolicyAgent(lambda: within(adaptive_policy(env), tuple(levels)))
+
+def cue_policy(env):
+    """The rule of a task whose observation announces its load (``CUE_TERMS``): stiff while the cue is on, soft
+    otherwise, the command moved at the probe's slew limit. Where there is no cue, the probe's rule."""
+    from vswrist_gym.tools.probe import _slew, adaptive_policy
+
+    u = env.unwrapped
+    sl = u.obs_slices
+    names = [n for n in CUE_TERMS if n in sl]
+    if not names:
+        return adaptive_policy(env)
+    cue, target, state = sl[names[0]], sl["target"], {}
+
+    def act(obs):
+        obs = np.asarray(obs, dtype=float)
+        s = 1.0 if obs[cue][0] > 0.5 else -1.0
+        return u.reference_to_action(obs[target], _slew(state, s, u.ctrl_dt))
+    return act
+
+
+def rule_agent(levels: tuple[float, float]):
+    from vswrist_gym.tools.probe import within
+
+    return lambda env: _PolicyAgent(lambda: within(cue_policy(env), tuple(levels)))
 
 
 def episode_returns(env_id: str, make_agent, seeds, episodes: int, env_kwargs: dict | None = None) -> list[float]:
