@@ -109,7 +109,7 @@ def test_single_env_replays_the_recorded_reference(task):
         pytest.skip(f"reference recorded with {ref['machine']}, this is {record.machine()}")
     for seed in record.SEEDS:
         for policy in ("random", "analytic"):
-            env = gym.make(vswrist_gym.LATEST[task], config=record.CONFIG)
+            env = gym.make(record.RECORDED_IDS[task], config=record.CONFIG)
             rec = record.run(env, lambda e: e.unwrapped.data, task, seed, policy)
             env.close()
             for k, v in rec.items():

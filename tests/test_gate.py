@@ -195,3 +195,48 @@ def test_headroom_path_smoke():
     d = np.subtract(hr["returns"]["rule"], best)
     assert hr["rule_minus_constant"]["mean"] == pytest.approx(d.mean())
     assert hr["passes"] == (d.mean() > 0 and d.mean() >= 5 * abs(d[0] - d[1]) / 2)  # s.e. of 2 values: |d0-d1|/2
+
+
+# ------------------------------------------------------------------------------------------------ v1 tasks
+
+
+@pytest.mark.parametrize("task,cue", [("LoadHold", "load_cue"), ("Drill", "engage_cue")])
+def test_v1_is_v0_with_the_cue_added_to_the_observation(task, cue):
+    """The same seed and actions give v0's observation, rewards and info in v1, plus the cue, which turns on
+    cue_lead_s before the hidden onset (LoadHold: the load stays; Drill: off again when the drill releases)."""
+    import gymnasium as gym
+
+    import vswrist_gym
+
+    assert vswrist_gym.LATEST[task] == f"VSWrist/{task}-v1"
+    e0, e1 = gym.make(f"VSWrist/{task}-v0"), gym.make(f"VSWrist/{task}-v1")
+    u0, u1 = e0.unwrapped, e1.unwrapped
+    assert (u0.task_id, u1.task_id) == (f"VSWrist/{task}-v0", f"VSWrist/{task}-v1")
+    assert cue not in u0.obs_slices and list(u1.obs_slices)[-1] == cue
+    assert u1.obs_size == u0.obs_size + 1
+    rng = np.random.default_rng(7)
+    for seed in (5, 6):
+        o0, _ = e0.reset(seed=seed)
+        o1, _ = e1.reset(seed=seed)
+        np.testing.assert_array_equal(o1[:-1], o0)
+        if task == "LoadHold":
+            on, off = u1.load_info()["onset"] - u1.cue_lead_s, math.inf
+        else:
+            on, off = u1._t_on - u1.cue_lead_s, u1._t_off
+        cues, times = [o1[-1]], [0.0]
+        done = False
+        while not done:
+            a = rng.uniform(-1.0, 1.0, e0.action_space.shape).astype(np.float32)
+            o0, r0, t0, tr0, i0 = e0.step(a)
+            o1, r1, t1, tr1, i1 = e1.step(a)
+            np.testing.assert_array_equal(o1[:-1], o0)
+            assert (r1, t1, tr1) == (r0, t0, tr0)
+            assert i1["posture_error"] == i0["posture_error"] and i1["elastic_energy"] == i0["elastic_energy"]
+            cues.append(o1[-1])
+            times.append(i1["time"])
+            done = t0 or tr0
+        want = [1.0 if on - 1e-9 <= t < off else 0.0 for t in times]
+        assert cues == want
+        assert 0.0 < sum(want) < len(want)   # the cue turns on within the episode
+    e0.close()
+    e1.close()

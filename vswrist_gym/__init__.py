@@ -25,11 +25,13 @@ if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ and not (
 
 ENV_IDS = {
     "VSWrist/LoadHold-v0": "vswrist_gym.envs.load_hold:LoadHoldEnv",
+    "VSWrist/LoadHold-v1": "vswrist_gym.envs.load_hold:LoadHoldEnv",
     "VSWrist/Polish-v0": "vswrist_gym.envs.polish:PolishEnv",
     "VSWrist/Polish-v1": "vswrist_gym.envs.polish:PolishEnv",
     "VSWrist/Impact-v0": "vswrist_gym.envs.impact:ImpactEnv",
     "VSWrist/Insertion-v0": "vswrist_gym.envs.insertion:InsertionEnv",
     "VSWrist/Drill-v0": "vswrist_gym.envs.drill:DrillEnv",
+    "VSWrist/Drill-v1": "vswrist_gym.envs.drill:DrillEnv",
     "VSWrist/Hammer-v0": "vswrist_gym.envs.hammer:HammerEnv",
     "VSWrist/Throw-v0": "vswrist_gym.envs.throw:ThrowEnv",
 }
@@ -38,6 +40,13 @@ ENV_IDS = {
 # each version changed.
 ENV_KWARGS = {
     "VSWrist/Polish-v0": {"id_config": {"task": {"contact_force": "last_substep"}}},  # the touch sensor's sample
+    # without the cue that announces the load's onset (load_cue) or the drill's engagement (engage_cue)
+    "VSWrist/LoadHold-v0": {"id_config": {"observation": [
+        "posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action",
+        "target", "phase"]}},
+    "VSWrist/Drill-v0": {"id_config": {"observation": [
+        "posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action",
+        "target", "tool_wrench", "phase"]}},
 }
 
 

@@ -19,6 +19,10 @@ from pathlib import Path
 import numpy as np
 
 TASKS = ("LoadHold", "Polish", "Impact", "Insertion", "Drill")
+# the id each task's records were made with: its newest version when recorded (LoadHold-v1 and Drill-v1 came later
+# and add a cue to the observation, nothing else)
+RECORDED_IDS = {"LoadHold": "VSWrist/LoadHold-v0", "Polish": "VSWrist/Polish-v1", "Impact": "VSWrist/Impact-v0",
+                "Insertion": "VSWrist/Insertion-v0", "Drill": "VSWrist/Drill-v0"}
 SEEDS = (3, 11)
 STEPS = 90                   # control steps per run (episodes of 0.6 s = 30 steps: several resets)
 DIVERGE_AT = 47              # the step before which the joint velocities are poisoned
@@ -84,7 +88,7 @@ def machine() -> str:
 def main(argv=None) -> int:
     import gymnasium as gym
 
-    import vswrist_gym
+    import vswrist_gym  # noqa: F401  (registers the ids)
 
     argv = sys.argv[1:] if argv is None else argv
     out = Path(argv[0]) if argv else Path(__file__).with_name("trajectories.npz")
@@ -92,7 +96,7 @@ def main(argv=None) -> int:
     for task in TASKS:
         for seed in SEEDS:
             for policy in ("random", "analytic"):
-                env = gym.make(vswrist_gym.LATEST[task], config=CONFIG)
+                env = gym.make(RECORDED_IDS[task], config=CONFIG)
                 rec = run(env, lambda e: e.unwrapped.data, task, seed, policy)
                 env.close()
                 for k, v in rec.items():

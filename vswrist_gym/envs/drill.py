@@ -1,11 +1,13 @@
-"""``VSWrist/Drill-v0``: hold the tool's posture against an oscillating torque and an axial thrust while the PS
-motor turns the tool.
+"""``VSWrist/Drill-v1`` (and ``-v0``): hold the tool's posture against an oscillating torque and an axial thrust
+while the PS motor turns the tool.
 
 The drill bit is a capsule on the tool. While the drill is engaged (random onset and duration) the hand feels
 a torque A sin(2 pi f t + phi) about a random axis perpendicular to the tool and a thrust F along the tool
 towards the wrist (the reaction of the workpiece); the PS reference turns at constant speed. Adapting
 stiffness pays: the disturbance acts for only part of the episode, and preload energy is worth paying only
-while it does.
+while it does. In v1 the observation's ``engage_cue`` announces the engagement ``cue_lead_s`` ahead and stays on
+until the drill releases; v0 (the same task, its observation without the cue) leaves the engagement to be seen in
+the tool wrench and the posture error, too late to stiffen.
 
 Success: RMS (RUD, FE) error while engaged below ``success_error`` and mean elastic energy below
 ``success_energy``.
@@ -22,7 +24,11 @@ from .shared import FINGER_END
 
 class DrillEnv(VSWristEnv):
     task = "drill"
-    task_id = "VSWrist/Drill-v0"
+
+    @property
+    def task_id(self) -> str:
+        """v1 announces the load in its observation (``engage_cue``); v0 is the same task without the cue."""
+        return "VSWrist/Drill-v1" if "engage_cue" in self.cfg["observation"] else "VSWrist/Drill-v0"
     summary = "hold the posture against an oscillating torque and an axial thrust while the PS motor turns the tool"
     success_text = ("RMS RUD/FE error while engaged < {success_error:g} rad and mean elastic energy "
                     "< {success_energy:g} J")
@@ -39,6 +45,19 @@ class DrillEnv(VSWristEnv):
         "success_error": ("number", 0.0, 10.0),
         "success_energy": ("number", 0.0, 1e6),
     }
+
+    # s: the ``engage_cue`` term turns on this long before the drill engages (the spindle spinning up), the time the
+    # stiffness command needs to cross its whole range at the rules' slew limit (probe.SLEW, 4 /s)
+    cue_lead_s = 0.5
+
+    def _task_obs_terms(self):
+        from .observations import ObsTerm
+        return [ObsTerm("engage_cue", 1, "-", f"1 from {self.cue_lead_s:g} s before the drill engages until it "
+                        "releases (the announced drill: Drill-v1), else 0", self._obs_engage_cue, 0.0, 1.0)]
+
+    def _obs_engage_cue(self) -> np.ndarray:
+        t = self._t + 1e-12
+        return np.array([1.0 if self._t_on - self.cue_lead_s <= t < self._t_off else 0.0])
 
     def _scene(self, spec) -> None:
         L = FINGER_END + self.tp["tool_length"]

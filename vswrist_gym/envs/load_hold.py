@@ -1,9 +1,11 @@
-"""``VSWrist/LoadHold-v0``: hold posture references while an unknown load hangs on the hand.
+"""``VSWrist/LoadHold-v1`` (and ``-v0``): hold posture references while an unknown load hangs on the hand.
 
 The paper's experiment (1.5 kg at the hand from 0.5 s), generalised: 1-3 piecewise-constant posture references
 (smooth 0.6 s transitions), a load of random mass, onset time and direction (within a cone around gravity)
 applied at the hand centre. Adapting stiffness pays: before the load arrives a soft wrist holds the posture
-without preload energy; after it arrives only a stiff wrist keeps the posture error small.
+without preload energy; after it arrives only a stiff wrist keeps the posture error small. In v1 the
+observation's ``load_cue`` announces the load ``cue_lead_s`` ahead, so that an agent can be stiff in time; v0 (the
+same task, its observation without the cue) leaves the onset to be seen in the posture error, too late to stiffen.
 
 Success: RMS (RUD, FE) error over the last ``success_window`` s below ``success_error`` and mean elastic energy
 below ``success_energy``.
@@ -21,7 +23,11 @@ from .shared import smoothstep
 class LoadHoldEnv(VSWristEnv):
     task = "load_hold"
     reads_sensors = False  # the load is known to the task; it reads poses only (see VSWristEnv.reads_sensors)
-    task_id = "VSWrist/LoadHold-v0"
+
+    @property
+    def task_id(self) -> str:
+        """v1 announces the load in its observation (``load_cue``); v0 is the same task without the cue."""
+        return "VSWrist/LoadHold-v1" if "load_cue" in self.cfg["observation"] else "VSWrist/LoadHold-v0"
     summary = "track posture references while an unknown load (mass, onset, direction) hangs on the hand"
     success_text = ("RMS RUD/FE error over the last {success_window:g} s < {success_error:g} rad and mean "
                     "elastic energy < {success_energy:g} J")
@@ -37,6 +43,18 @@ class LoadHoldEnv(VSWristEnv):
         "success_energy": ("number", 0.0, 1e6),
     }
     blend_s = 0.6  # s, minimum-jerk transition between references (slower would hide the load's effect)
+    # s: the ``load_cue`` term turns on this long before the load arrives, the time the stiffness command needs to
+    # cross its whole range at the rules' slew limit (probe.SLEW, 4 /s), so that a policy reading it can be stiff
+    # when the load comes and soft (no preload energy) until shortly before
+    cue_lead_s = 0.5
+
+    def _task_obs_terms(self):
+        from .observations import ObsTerm
+        return [ObsTerm("load_cue", 1, "-", f"1 from {self.cue_lead_s:g} s before the load arrives on (the "
+                        "announced load: LoadHold-v1), else 0", self._obs_load_cue, 0.0, 1.0)]
+
+    def _obs_load_cue(self) -> np.ndarray:
+        return np.array([1.0 if self._t + 1e-12 >= self._onset - self.cue_lead_s else 0.0])
 
     def _sample_posture(self, rng) -> np.ndarray:
         f = self.tp["target_fraction"]
