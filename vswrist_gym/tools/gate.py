@@ -377,9 +377,10 @@ def gate_row(doc: dict) -> str:
             f"{sh['mean']:+.2f} [{sh['low']:+.2f}, {sh['high']:+.2f}]"
         verdict = "**pass**" if summary["passes"] else ("incomplete" if not summary["complete"] else "fail")
         cells += [gains, share, verdict]
-    gate = "**pass**" if hr["passes"] and summary is not None and summary["passes"] else "fail"
-    if summary is not None and not summary["complete"] and hr["passes"]:
-        gate = "pending"
+    if not hr["passes"] or (summary is not None and summary["complete"] and not summary["passes"]):
+        gate = "fail"
+    else:
+        gate = "**pass**" if summary is not None and summary["passes"] else "pending"
     cells.append(gate)
     return "| " + " | ".join(cells) + " |"
 
@@ -387,11 +388,13 @@ def gate_row(doc: dict) -> str:
 def gate_table(docs: list[dict]) -> str:
     made = sorted(v["utc"] for d in docs for v in d.get("made", {}).values())
     machines = sorted({v["machine"] for d in docs for v in d.get("made", {}).values()})
-    cmds = sorted({c for d in docs for c in d.get("commands", [])})
+    budgets = sorted({d["protocol"]["budget"] for d in docs})
+    budget = f" --budget {budgets[0]}" if budgets != [BUDGET] and len(budgets) == 1 else ""
+    ids = " ".join(d["task"] for d in docs)
     lines = [GATE_HEADER] + [gate_row(d) for d in docs]
-    lines += ["", f"Made by {'; '.join(f'`{c}`' for c in cmds) or '`vswrist gate`'}, {made[0] if made else '?'} to "
-              f"{made[-1] if made else '?'} UTC on {'; '.join(machines) or '?'} (other jobs sharing its cores; "
-              f"returns do not depend on the load)."]
+    lines += ["", f"`vswrist gate --tasks {ids}{budget}` (`--stage headroom` first, then the rest), "
+              f"{made[0] if made else '?'} to {made[-1] if made else '?'} UTC on {'; '.join(machines) or '?'} "
+              f"(other jobs sharing its cores; the returns do not depend on the load)."]
     return "\n".join(lines)
 
 
