@@ -273,12 +273,12 @@ def necessity_summary(doc: dict) -> dict:
 # ------------------------------------------------------------------------------------------------ one task
 
 
-def protocol_block(budget: int = BUDGET) -> dict:
+def protocol_block(budget: int = BUDGET, train_seeds=NECESSITY_SEEDS) -> dict:
     return {"tuning_eval_seeds": list(TUNING_EVAL_SEEDS), "heldout_eval_seeds": list(HELDOUT_EVAL_SEEDS),
             "episodes_per_seed": EPISODES_PER_SEED, "constants": list(CONSTANT_COMMANDS),
             "rule_levels": [list(lv) for lv in RULE_LEVELS], "headroom_se": HEADROOM_SE,
-            "necessity_share": NECESSITY_SHARE, "necessity_seeds": list(NECESSITY_SEEDS), "budget": int(budget),
-            "posture_scale": POSTURE_SCALE, "level": LEVEL}
+            "necessity_share": NECESSITY_SHARE, "necessity_seeds": [int(s) for s in train_seeds],
+            "budget": int(budget), "posture_scale": POSTURE_SCALE, "level": LEVEL}
 
 
 def _stamp(doc: dict, stage: str) -> None:
@@ -300,12 +300,13 @@ def result_path(out: Path, env_id: str) -> Path:
 
 
 def run_task(env_id: str, out: Path, runs_dir: Path, stage: str = "all", budget: int = BUDGET,
-             command: str = "", log=print) -> dict:
+             command: str = "", log=print, train_seeds=NECESSITY_SEEDS) -> dict:
     """Selection, headroom and (``stage`` all or necessity) necessity of one task, each saved as it is done and
     skipped when already in OUT/<Task>-vN.json."""
     path = result_path(out, env_id)
-    doc = json.loads(path.read_text()) if path.is_file() else {"task": env_id, "protocol": protocol_block(budget)}
-    if doc["protocol"] != protocol_block(budget):
+    proto = protocol_block(budget, train_seeds)
+    doc = json.loads(path.read_text()) if path.is_file() else {"task": env_id, "protocol": proto}
+    if doc["protocol"] != proto:
         raise GateError(f"{path} was made under another protocol ({doc['protocol']}); move it away to start over")
     if command:
         doc.setdefault("commands", [])
@@ -328,8 +329,8 @@ def run_task(env_id: str, out: Path, runs_dir: Path, stage: str = "all", budget:
         f"{'passes' if doc['headroom']['passes'] else 'fails'}")
     if stage == "headroom":
         return doc
-    nec = doc.setdefault("necessity", {"seeds": list(NECESSITY_SEEDS), "budget": int(budget), "runs": {}})
-    for s in NECESSITY_SEEDS:
+    nec = doc.setdefault("necessity", {"seeds": list(proto["necessity_seeds"]), "budget": int(budget), "runs": {}})
+    for s in proto["necessity_seeds"]:
         if str(s) in nec["runs"]:
             continue
         t0 = time.time()
@@ -390,6 +391,9 @@ def gate_table(docs: list[dict]) -> str:
     machines = sorted({v["machine"] for d in docs for v in d.get("made", {}).values()})
     budgets = sorted({d["protocol"]["budget"] for d in docs})
     budget = f" --budget {budgets[0]}" if budgets != [BUDGET] and len(budgets) == 1 else ""
+    seeds = sorted({tuple(d["protocol"]["necessity_seeds"]) for d in docs})
+    if len(seeds) == 1 and list(seeds[0]) != list(NECESSITY_SEEDS):
+        budget += " --train-seeds " + " ".join(map(str, seeds[0]))
     ids = " ".join(d["task"] for d in docs)
     lines = [GATE_HEADER] + [gate_row(d) for d in docs]
     lines += ["", f"`vswrist gate --tasks {ids}{budget}` (`--stage headroom` first, then the rest), "
@@ -409,12 +413,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="experiments/gate", help="folder of the per-task JSON results")
     ap.add_argument("--runs-dir", default="runs/gate", help="folder of the posture-only PPO runs (git-ignored)")
     ap.add_argument("--budget", type=int, default=BUDGET, help="env steps per posture-only PPO run")
+    ap.add_argument("--train-seeds", type=int, nargs="+", default=list(NECESSITY_SEEDS), metavar="SEED",
+                    help=f"training seeds of the posture-only PPO (default {' '.join(map(str, NECESSITY_SEEDS))}); "
+                         f"other seeds need another --out, since a result file records its protocol")
     ap.add_argument("--write", default=None, metavar="PATH",
                     help="rewrite the 'gate' generated block of PATH (docs/environments.md) from the JSON files")
     ap.add_argument("--table-only", action="store_true", help="compute nothing: print (and --write) the table")
     args = ap.parse_args(argv)
     if args.budget < 1:
         ap.error(f"--budget must be a positive number of env steps, got {args.budget}")
+    if len(set(args.train_seeds)) < 2 or min(args.train_seeds) < 0:
+        ap.error(f"--train-seeds must be at least two distinct seeds >= 0, got {args.train_seeds}")
     ids = list(dict.fromkeys(resolve_id(t) for t in args.tasks))  # argparse leaves a list default unconverted
     out = Path(args.out)
     command = "vswrist gate " + shlex.join(argv if argv is not None else sys.argv[1:])
@@ -425,7 +434,8 @@ def main(argv: list[str] | None = None) -> int:
         for env_id in ids:
             try:
                 run_task(env_id, out, Path(args.runs_dir), stage=args.stage, budget=args.budget, command=command,
-                         log=lambda *a: print(*a, flush=True))  # a log redirected to a file shows progress
+                         log=lambda *a: print(*a, flush=True),  # a log redirected to a file shows progress
+                         train_seeds=list(dict.fromkeys(args.train_seeds)))
             except GateError as exc:
                 print(f"vswrist gate: {exc}", file=sys.stderr)
                 return 2
