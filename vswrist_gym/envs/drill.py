@@ -26,10 +26,16 @@ class DrillEnv(VSWristEnv):
     task = "drill"
 
     @property
+    def summary(self) -> str:
+        text = "hold the posture against an oscillating torque and an axial thrust while the PS motor turns the tool"
+        return f"{text}; `engage_cue` announces the drill 0.5 s ahead" if "engage_cue" in self.cfg["observation"] \
+            else text
+
+    @property
     def task_id(self) -> str:
-        """v1 announces the load in its observation (``engage_cue``); v0 is the same task without the cue."""
+        """v1 announces the drill in its observation (``engage_cue``); v0 is the same task without the cue."""
         return "VSWrist/Drill-v1" if "engage_cue" in self.cfg["observation"] else "VSWrist/Drill-v0"
-    summary = "hold the posture against an oscillating torque and an axial thrust while the PS motor turns the tool"
+
     success_text = ("RMS RUD/FE error while engaged < {success_error:g} rad and mean elastic energy "
                     "< {success_energy:g} J")
     task_spec = {

@@ -25,10 +25,15 @@ class LoadHoldEnv(VSWristEnv):
     reads_sensors = False  # the load is known to the task; it reads poses only (see VSWristEnv.reads_sensors)
 
     @property
+    def summary(self) -> str:
+        text = "track posture references while an unknown load (mass, onset, direction) hangs on the hand"
+        return text + "; `load_cue` announces it 0.5 s ahead" if "load_cue" in self.cfg["observation"] else text
+
+    @property
     def task_id(self) -> str:
         """v1 announces the load in its observation (``load_cue``); v0 is the same task without the cue."""
         return "VSWrist/LoadHold-v1" if "load_cue" in self.cfg["observation"] else "VSWrist/LoadHold-v0"
-    summary = "track posture references while an unknown load (mass, onset, direction) hangs on the hand"
+
     success_text = ("RMS RUD/FE error over the last {success_window:g} s < {success_error:g} rad and mean "
                     "elastic energy < {success_energy:g} J")
     task_spec = {
