@@ -206,7 +206,7 @@ def test_search_writes_a_best_entry_that_train_reads_without_touching_evaluation
     text = finish(subprocess.Popen([sys.executable, "-m", "vswrist_gym.cli", "sweep", str(path)],
                                    stdout=open(log, "w"), stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path), log)
     assert "best eval_return" in text
-    cfg = hparams.load_config("ppo", "VSWrist/LoadHold-v0", best)
+    cfg = hparams.load_config("ppo", "VSWrist/LoadHold-v1", best)
     lr = cfg.algo_kwargs["learning_rate"]
     assert 1.0e-4 <= lr <= 1.0e-3 and 0.9 <= cfg.algo_kwargs["gae_lambda"] <= 0.99
     assert cfg.n_timesteps == 2048
@@ -272,11 +272,11 @@ def test_search_driver_killed_resume_reruns_no_finished_sample_and_writes_the_be
             assert int(ev["timesteps"][-1]) == budget
             final[d.name] = float(ev["results"][-1].mean())
     top = max(final, key=final.get)
-    lr_top = yaml.safe_load((root / top / "hparams.yaml").read_text())["VSWrist/LoadHold-v0"]["learning_rate"]
-    assert hparams.load_config("ppo", "VSWrist/LoadHold-v0", best).algo_kwargs["learning_rate"] == lr_top
+    lr_top = yaml.safe_load((root / top / "hparams.yaml").read_text())["VSWrist/LoadHold-v1"]["learning_rate"]
+    assert hparams.load_config("ppo", "VSWrist/LoadHold-v1", best).algo_kwargs["learning_rate"] == lr_top
     written = best.read_text()
     top_level = [line for line in written.splitlines() if line.startswith("VSWrist/")]
-    assert top_level == ["VSWrist/LoadHold-v0:"] and written.count("(mode: search)") == 1, written
+    assert top_level == ["VSWrist/LoadHold-v1:"] and written.count("(mode: search)") == 1, written
 
 
 # ------------------------------------------------------------------------------------ a cluster of `ray start`
