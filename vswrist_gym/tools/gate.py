@@ -387,7 +387,8 @@ def gate_row(doc: dict) -> str:
 
 
 def gate_table(docs: list[dict]) -> str:
-    made = sorted(v["utc"] for d in docs for v in d.get("made", {}).values())
+    # the table states the dates only (the JSON files keep the times)
+    made = sorted({v["utc"].split(" ")[0] for d in docs for v in d.get("made", {}).values()})
     machines = sorted({v["machine"] for d in docs for v in d.get("made", {}).values()})
     budgets = sorted({d["protocol"]["budget"] for d in docs})
     budget = f" --budget {budgets[0]}" if budgets != [BUDGET] and len(budgets) == 1 else ""
@@ -397,7 +398,7 @@ def gate_table(docs: list[dict]) -> str:
     ids = " ".join(d["task"] for d in docs)
     lines = [GATE_HEADER] + [gate_row(d) for d in docs]
     lines += ["", f"`vswrist gate --tasks {ids}{budget}` (`--stage headroom` first, then the rest), "
-              f"{made[0] if made else '?'} to {made[-1] if made else '?'} UTC on {'; '.join(machines) or '?'} "
+              f"{' to '.join(dict.fromkeys([made[0], made[-1]])) if made else '?'} on {'; '.join(machines) or '?'} "
               f"(other jobs sharing its cores; the returns do not depend on the load)."]
     return "\n".join(lines)
 
