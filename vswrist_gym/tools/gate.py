@@ -92,23 +92,23 @@ def necessity_passes(share: dict, limit: float = NECESSITY_SHARE) -> bool:
 # ------------------------------------------------------------------------------------------------ episodes
 
 
+def _check_seeds(seeds, allowed: tuple, use: str, name: str) -> list[int]:
+    seeds = list(seeds)
+    bad = [s for s in seeds if s not in allowed]
+    if not seeds or bad:
+        raise GateError(f"{use} seeds must be {'held-out' if name.startswith('HELDOUT') else 'tuning'} evaluation seeds ({allowed[0]}-"
+                        f"{allowed[-1]}, protocol.{name}), got {bad or 'none'}")
+    return seeds
+
+
 def check_tuning_seeds(seeds) -> list[int]:
     """Selection reads tuning evaluation seeds only: any other seed (the held-out ones above all) is refused."""
-    seeds = list(seeds)
-    bad = [s for s in seeds if s not in TUNING_EVAL_SEEDS]
-    if not seeds or bad:
-        raise GateError(f"selection seeds must be tuning evaluation seeds ({TUNING_EVAL_SEEDS[0]}-"
-                        f"{TUNING_EVAL_SEEDS[-1]}, protocol.TUNING_EVAL_SEEDS), got {bad or 'none'}")
-    return seeds
+    return _check_seeds(seeds, TUNING_EVAL_SEEDS, "selection", "TUNING_EVAL_SEEDS")
 
 
 def check_heldout_seeds(seeds) -> list[int]:
-    seeds = list(seeds)
-    bad = [s for s in seeds if s not in HELDOUT_EVAL_SEEDS]
-    if not seeds or bad:
-        raise GateError(f"report seeds must be held-out evaluation seeds ({HELDOUT_EVAL_SEEDS[0]}-"
-                        f"{HELDOUT_EVAL_SEEDS[-1]}, protocol.HELDOUT_EVAL_SEEDS), got {bad or 'none'}")
-    return seeds
+    """The report reads held-out evaluation seeds only."""
+    return _check_seeds(seeds, HELDOUT_EVAL_SEEDS, "report", "HELDOUT_EVAL_SEEDS")
 
 
 class _PolicyAgent:
