@@ -399,7 +399,7 @@ def test_video_replays_a_run_dir_as_evaluate_does(trained_run, tmp_path, headles
                   "--out", tmp_path / "ev")
     assert res.returncode == 0, res.stderr
     expected = json.loads((tmp_path / "ev" / "metrics.json").read_text())["episodes"][0]["return"]
-    res = vswrist("video", "--task", "LoadHold", "--agent", trained_run / "model.zip", "--seed",
+    res = vswrist("video", "--task", TASK, "--agent", trained_run / "model.zip", "--seed",
                   protocol.reset_seed(0, 0), "--width", "64", "--height", "48", "--out", tmp_path / "v.mp4")
     assert res.returncode == 0, res.stderr
     assert float(re.search(r"return (-?[\d.]+)", res.stdout)[1]) == pytest.approx(expected, abs=0.006)
