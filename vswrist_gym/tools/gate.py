@@ -256,6 +256,29 @@ def trained_returns(run_dir: Path, env_id: str, seeds=HELDOUT_EVAL_SEEDS,
     return episode_returns(env_id, spec.make, check_heldout_seeds(seeds), episodes, spec.env_kwargs)
 
 
+def shipped_against_constant(task: str, track: str, gate_dir: Path, episodes_per_seed: int = EPISODES_PER_SEED,
+                             seeds=HELDOUT_EVAL_SEEDS) -> dict:
+    """A shipped policy against the best constant its id's gate selected on tuning episodes, paired on held-out
+    episodes: the difference's mean, s.e., 95 % Student-t interval and whether it loses beyond that interval."""
+    from vswrist_gym.agents.evaluate import AgentSpec
+    from vswrist_gym.agents.protocol import mean_ci
+
+    spec = AgentSpec(f"pretrained:{task}:{track}")
+    env_id = spec.trained.env_id
+    path = result_path(gate_dir, env_id)
+    if not path.is_file():
+        raise GateError(f"no gate result for {env_id} in {gate_dir} (run `vswrist gate --tasks {env_id} "
+                        f"--stage headroom` first)")
+    best = json.loads(path.read_text())["selection"]["best_constant"]
+    seeds = check_heldout_seeds(seeds)
+    policy = episode_returns(env_id, spec.make, seeds, episodes_per_seed, spec.env_kwargs)
+    constant = episode_returns(env_id, constant_agent(best), seeds, episodes_per_seed, {})
+    diff = paired(policy, constant)
+    ci = mean_ci(np.asarray(policy) - np.asarray(constant))
+    return {"task": task, "track": track, "env_id": env_id, "best_constant": best, "difference": diff,
+            "ci": [ci["low"], ci["high"]], "loses": bool(ci["high"] < 0.0)}
+
+
 def necessity_summary(doc: dict) -> dict:
     """Per training seed the posture-only PPO's paired gain over the constant; the share of the headroom and its
     interval over the seeds; the verdict."""
@@ -420,6 +443,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", default=None, metavar="PATH",
                     help="rewrite the 'gate' generated block of PATH (docs/environments.md) from the JSON files")
     ap.add_argument("--table-only", action="store_true", help="compute nothing: print (and --write) the table")
+    ap.add_argument("--shipped", action="store_true",
+                    help="instead: every shipped policy against its id's selected constant on the held-out episodes")
     args = ap.parse_args(argv)
     if args.budget < 1:
         ap.error(f"--budget must be a positive number of env steps, got {args.budget}")
@@ -431,6 +456,8 @@ def main(argv: list[str] | None = None) -> int:
     from vswrist_gym.agents.procs import limit_threads
 
     limit_threads(1)
+    if args.shipped:
+        return shipped_table(out)
     if not args.table_only:
         for env_id in ids:
             try:
@@ -454,6 +481,24 @@ def main(argv: list[str] | None = None) -> int:
         path.write_text(update(path.read_text(), {"gate": table}))
         print(f"{path}: gate block updated")
     return 0
+
+
+def shipped_table(gate_dir: Path) -> int:
+    """Print every shipped policy's held-out paired difference to the best constant; exit 1 if one loses."""
+    from vswrist_gym.agents.shipped import shipped
+
+    print("| shipped policy | id | best constant | policy - constant [95 %] | wins | verdict |\n|---|---|---|---|---|---|")
+    losers = []
+    for task, track in sorted(shipped()):
+        r = shipped_against_constant(task, track, gate_dir)
+        d = r["difference"]
+        verdict = "loses" if r["loses"] else ("beats" if r["ci"][0] > 0 else "no difference shown")
+        print(f"| {task}:{track} | `{r['env_id']}` | s = {r['best_constant']:+.1f} | {d['mean']:+.1f} "
+              f"[{r['ci'][0]:+.1f}, {r['ci'][1]:+.1f}] | {d['wins']:.0%} | {verdict} |", flush=True)
+        losers += [f"{task}:{track}"] if r["loses"] else []
+    if losers:
+        print(f"vswrist gate: shipped policies that lose to the best constant: {' '.join(losers)}", file=sys.stderr)
+    return 1 if losers else 0
 
 
 if __name__ == "__main__":
