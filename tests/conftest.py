@@ -44,6 +44,16 @@ def headless_gl():
         pytest.skip(f"no offscreen OpenGL (MUJOCO_GL={os.environ.get('MUJOCO_GL')}): {reason}")
 
 
+def final_info(env, policy, seed):
+    """The last step's info of one episode of ``policy`` (obs -> action) from reset seed ``seed``."""
+    obs, info = env.reset(seed=seed)
+    done = False
+    while not done:
+        obs, _, term, trunc, info = env.step(policy(obs))
+        done = term or trunc
+    return info
+
+
 def random_postures(kin, n, seed=0, margin=0.0):
     """n postures uniformly over the range of motion (optionally shrunk by ``margin`` rad)."""
     rng = np.random.default_rng(seed)

@@ -10,19 +10,11 @@ import numpy as np
 import pytest
 
 import vswrist_gym  # noqa: F401
+from conftest import final_info as _episode
 from vswrist_gym.tools.probe import (CONSTANT_COMMANDS, adaptive_policy, constant_policy, evaluate, probe,
                                     random_policy)
 
 ID = "VSWrist/Hammer-v0"
-
-
-def _episode(env, policy, seed):
-    obs, info = env.reset(seed=seed)
-    done = False
-    while not done:
-        obs, _, term, trunc, info = env.step(policy(obs))
-        done = term or trunc
-    return info
 
 
 def test_swing_runs_the_fastest_motor_at_its_speed_limit():
