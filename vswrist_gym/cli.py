@@ -31,10 +31,11 @@ COMMANDS = {
     "sweep": ("vswrist_gym.sweep.cli:main", "run a sweep file (grid or hyperparameter search) on Ray"),
     "track": ("vswrist_gym.tools.track:main", "a track's runs (with --run) and its results table"),
     "gate": ("vswrist_gym.tools.gate:main", "validity gate per task: headroom and necessity of the stiffness"),
+    "benchmark": ("vswrist_gym.tools.benchmark:main", "the leaderboard: gated tasks x tracks x algorithms, held out"),
 }
 
 # The commands that cannot start without the [train] extra: they check it before they write anything.
-NEEDS_TRAIN = ("train", "compare")
+NEEDS_TRAIN = ("train", "compare", "benchmark")
 # The top-level modules of each extra: a command that meets one missing names the extra to install.
 EXTRA_MODULES = {
     "train": ("torch", "stable_baselines3", "sb3_contrib", "tensorboard", "matplotlib", "tqdm", "rich"),
