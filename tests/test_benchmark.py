@@ -72,21 +72,25 @@ class _Constant:
         return act, None
 
 
-def test_freezing_a_constant_stiffness_changes_nothing():
+@pytest.mark.parametrize("env_id, residual", [
+    ("VSWrist/Throw-v0", {"posture_scale": 0.05, "stiffness_scale": 2.0, "stiffness_nominal": 0.0}),
+    ("VSWrist/Hammer-v0", {"posture_scale": 0.05, "stiffness_scale": 1.0}),   # the task's own nominal, -0.5
+])
+def test_freezing_a_constant_stiffness_changes_nothing(env_id, residual):
     """The freeze test recovers the held value from the episode's own internal torque (lam -> command -> action,
     the inverse of the action's map): for a policy whose stiffness never varies it must replay the same
     episodes, so the variation of the stiffness earns exactly 0."""
-    env_id = "VSWrist/Throw-v0"
-    kwargs = {"action_mode": "residual", "residual": {"posture_scale": 0.05, "stiffness_scale": 2.0,
-                                                        "stiffness_nominal": 0.0}}
+    kwargs = {"action_mode": "residual", "residual": residual}
     venv = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", **kwargs)
     env = gym.make(env_id, **kwargs)
     try:
         seeds = HELDOUT_EVAL_SEEDS[:1]
         recs = benchmark._records(venv, _Constant(0.3), seeds)
         commands = [np.mean([env.unwrapped.lam_to_stiffness_command(l) for l in tr.lam]) for _, tr in recs]
-        assert commands == pytest.approx([0.6, 0.6], abs=1e-7)   # s = nominal + scale a, a a float32 action
-        held = benchmark.FrozenStiffness(_Constant(-0.7), np.array(commands) / 2.0)
+        nominal = residual.get("stiffness_nominal", -0.5)
+        expected = nominal + residual["stiffness_scale"] * 0.3          # s = nominal + scale a
+        assert commands == pytest.approx([expected] * 2, abs=1e-7)     # a float32 action
+        held = benchmark.FrozenStiffness(_Constant(-0.7), benchmark.held_actions(env, commands))
         again = benchmark._records(venv, held, seeds)
         assert [r["return"] for r, _ in again] == [r["return"] for r, _ in recs]
         other = benchmark._records(venv, _Constant(-0.7), seeds)   # without the freeze: another stiffness

@@ -29,9 +29,10 @@ EPOCHS, BATCH, LR = 300, 256, 1e-3
 class RuleInResidual:
     """The gate's rule (a posture_stiffness action) as the stiffness-track residual action."""
 
-    def __init__(self, env, levels, residual):
+    def __init__(self, env, levels):
         self.agent = rule_agent(tuple(levels))(env)
-        self.nominal, self.scale = residual.get("stiffness_nominal", 0.0), residual["stiffness_scale"]
+        residual = env.unwrapped.cfg["residual"]   # the task's defaults under the entry's settings
+        self.nominal, self.scale = residual["stiffness_nominal"], residual["stiffness_scale"]
 
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
         s = float(self.agent.predict(obs, episode_start=episode_start)[0][-1])
@@ -99,10 +100,10 @@ def study(env_id: str) -> dict:
     env = gym.make(env_id, **kwargs)
     data: list = []
     for s in DATA_SEEDS:
-        rollout(env, RuleInResidual(env, levels, kwargs["residual"]), s, data)
+        rollout(env, RuleInResidual(env, levels), s, data)
     clone, mse = fit(data)
     resets = [reset_seed(s, i) for s in HELDOUT_EVAL_SEEDS for i in range(EPISODES_PER_SEED)]
-    rule = [rollout(env, RuleInResidual(env, levels, kwargs["residual"]), r) for r in resets]
+    rule = [rollout(env, RuleInResidual(env, levels), r) for r in resets]
     cloned = [rollout(env, clone, r) for r in resets]
     env.close()
     out = {"env_id": env_id, "env_kwargs": kwargs, "samples": len(data), "train_mse": mse,

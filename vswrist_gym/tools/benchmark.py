@@ -137,6 +137,14 @@ class FrozenStiffness:
         return action, state
 
 
+def held_actions(env, commands) -> np.ndarray:
+    """The residual stiffness actions that command ``commands`` (the inverse of s = nominal + scale a), with the
+    nominal and scale the environment applies: the task's own defaults (a task may set its nominal) under the
+    run's settings."""
+    r = env.unwrapped.cfg["residual"]
+    return np.clip((np.asarray(commands, dtype=float) - r["stiffness_nominal"]) / r["stiffness_scale"], -1.0, 1.0)
+
+
 def _records(venv, agent, seeds) -> list[tuple[dict, object]]:
     from vswrist_gym.agents.protocol import run_episodes_batched
 
@@ -167,8 +175,7 @@ def evaluate_run(run_dir: Path, env_id: str, seeds=HELDOUT_EVAL_SEEDS, episodes:
                "success": [None if math.isnan(r["success"]) else float(r["success"]) for r, _ in recs],
                "mean_commands": commands}
         if freeze:
-            r = kwargs["residual"]
-            a = np.clip((np.asarray(commands) - r.get("stiffness_nominal", 0.0)) / r["stiffness_scale"], -1.0, 1.0)
+            a = held_actions(u, commands)
             frozen = []
             for k, s in enumerate(seeds):
                 held = FrozenStiffness(agent, a[k * episodes:(k + 1) * episodes])
