@@ -183,6 +183,19 @@ def test_a_result_made_with_another_budget_is_refused(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_runs_made_with_another_entry_are_refused(tmp_path):
+    env_id = "VSWrist/Throw-v0"
+    gate_ = benchmark.gate_block(env_id, GATE_DIR)
+    entry = benchmark.track_entry(env_id, "ppo", "stiffness", gate_["best_constant"], 80_000)
+    entry[env_id]["learning_rate"] = 1.0   # what a changed configs/ppo.yaml would give
+    doc = {"task": env_id, "gate": gate_, "protocol": benchmark.protocol_block([0, 1], {"ppo": 80_000}),
+           "cells": {"stiffness/ppo": {"entry": entry, "runs": {"0": _run([1.0, 2.0])}}}}
+    (tmp_path / "Throw-v0.json").write_text(json.dumps(doc))
+    with pytest.raises(benchmark.BenchmarkError, match="another hyperparameter entry"):
+        benchmark.run_task(env_id, tmp_path, tmp_path / "runs", GATE_DIR, ["stiffness"], ["ppo"], [0, 1])
+    assert not (tmp_path / "runs").exists()
+
+
 def test_the_committed_leaderboard_is_what_the_command_writes():
     docs = [json.loads(p.read_text()) for p in sorted(OUT.glob("*.json"))]
     if not docs:

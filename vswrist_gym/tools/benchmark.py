@@ -297,6 +297,11 @@ def run_task(env_id: str, out: Path, runs_dir: Path, gate_dir: Path, tracks, alg
     for track in tracks:
         for algo in algos:
             cell = doc["cells"].setdefault(f"{track}/{algo}", {"runs": {}})
+            entry = track_entry(env_id, algo, track, gate["best_constant"], budgets[algo])
+            if cell["runs"] and cell.get("entry", entry) != entry:
+                raise BenchmarkError(f"{path}: the {track}/{algo} runs were trained with another hyperparameter "
+                                     f"entry than configs/{algo}.yaml's; move the file away to start over")
+            cell["entry"] = entry
             for s in seeds:
                 if str(s) in cell["runs"]:
                     continue
