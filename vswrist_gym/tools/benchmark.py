@@ -347,7 +347,7 @@ def leaderboard(docs: list[dict], reps: int = BOOTSTRAP_REPS) -> str:
             track, algo = key.split("/")
             s = cell_summary(cell, const, hr)
             learned = "n/a" if track == "posture" else ("**yes**" if s["learned"] else "no")
-            rows.append(f"| `{d['task']}` | {track} | {algo.upper()} | {s['seeds']} | {_ci(s['return'])} "
+            rows.append(f"| `{d['task']}` | {track} | {algo.upper()} | {s['seeds']} | {_ci(s['return'], '.1f')} "
                         f"| {_ci(s['vs_constant'])} | {_ci(s['score'], '+.2f')} | {_ci(s['freeze'])} "
                         f"| {_ci(s['success'], '.2f')} | {learned} |")
     lines = rows + [""]
