@@ -32,7 +32,7 @@ def test_pictures_command_renders_the_task(tmp_path, headless_gl):
     assert a.shape == b.shape == (60, 80, 3)
     assert a.std() > 10 and b.std() > 10  # floor, sky and bodies: far from one colour
     assert np.abs(a.astype(int) - b.astype(int)).max() > 50
-    assert pictures.main(["--out", str(tmp_path), "--tasks", "VSWrist/Drill-v1"]) == 0
+    assert pictures.main(["--out", str(tmp_path), "--tasks", "VSWrist/Drill-v2"]) == 0
     from PIL import Image
 
     with Image.open(tmp_path / "Drill.png") as im:

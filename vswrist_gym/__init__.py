@@ -29,9 +29,11 @@ ENV_IDS = {
     "VSWrist/Polish-v0": "vswrist_gym.envs.polish:PolishEnv",
     "VSWrist/Polish-v1": "vswrist_gym.envs.polish:PolishEnv",
     "VSWrist/Impact-v0": "vswrist_gym.envs.impact:ImpactEnv",
+    "VSWrist/Impact-v1": "vswrist_gym.envs.impact:ImpactEnv",
     "VSWrist/Insertion-v0": "vswrist_gym.envs.insertion:InsertionEnv",
     "VSWrist/Drill-v0": "vswrist_gym.envs.drill:DrillEnv",
     "VSWrist/Drill-v1": "vswrist_gym.envs.drill:DrillEnv",
+    "VSWrist/Drill-v2": "vswrist_gym.envs.drill:DrillEnv",
     "VSWrist/Hammer-v0": "vswrist_gym.envs.hammer:HammerEnv",
     "VSWrist/Throw-v0": "vswrist_gym.envs.throw:ThrowEnv",
 }
@@ -44,9 +46,12 @@ ENV_KWARGS = {
     "VSWrist/LoadHold-v0": {"id_config": {"observation": [
         "posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action",
         "target", "phase"]}},
-    "VSWrist/Drill-v0": {"id_config": {"observation": [
+    "VSWrist/Drill-v0": {"id_config": {"compensate_tool": False, "observation": [
         "posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action",
         "target", "tool_wrench", "phase"]}},
+    # the controller's gravity compensation without the PS flange and the tool (the hand and coupler only)
+    "VSWrist/Drill-v1": {"id_config": {"compensate_tool": False}},
+    "VSWrist/Impact-v0": {"id_config": {"compensate_tool": False}},
 }
 
 

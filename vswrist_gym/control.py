@@ -92,7 +92,10 @@ class AnalyticController:
     J_a^T Sigma_s J_a (False). ``gravity_compensation``: add the spring torques tau_g (minimum norm,
     J_a^T tau_g = dV_g/du) that hold the weight of the hand (point mass at ``inertia.hand_offset``) and the
     coupler at the reference posture under ``environment.gravity``; legs and PS unit are ignored (small),
-    loads unknown to the controller are not compensated. Off by default, as in the paper.
+    loads unknown to the controller are not compensated. Off by default, as in the paper. ``payload``: further
+    point masses on the PS axis that the compensation holds too, as (mass kg, distance m from the coupler centre
+    along the coupler X axis) pairs: parts whose weight the controller knows, e.g. the PS flange and a task's tool
+    at its nominal mass (a mass on the PS axis loads RUD/FE the same at every PS angle).
 
     Posture references outside the range of motion are clipped to it (RUD, FE and PS limits of
     ``range_of_motion``); lam is clipped to :meth:`lambda_range`, so no spring is asked for more than the
@@ -100,7 +103,7 @@ class AnalyticController:
     """
 
     def __init__(self, params: WristParams | str | None = None, dt: float = 0.02, include_load_term: bool = True,
-                 gravity_compensation: bool = False):
+                 gravity_compensation: bool = False, payload=()):
         self.params = p = load_params(params)
         if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
             raise ValueError(f"dt (control period) must be a finite number of seconds > 0, got {dt!r}")
@@ -123,6 +126,15 @@ class AnalyticController:
         self._alpha, self._nu = p.control.lm_alpha, p.control.lm_nu
         self._masses = (p.inertia.hand_mass, p.inertia.coupler_mass)
         self._hand_offset = p.inertia.hand_offset
+        self.payload = tuple((float(m), float(x)) for m, x in payload)
+        if not all(math.isfinite(m) and m >= 0.0 and math.isfinite(x) for m, x in self.payload):
+            raise ValueError(f"payload must be (mass >= 0 kg, distance m) pairs of finite numbers, got {payload!r}")
+        # the weight's generalised load is linear in (total mass, first moment along x_c): the payload adds to both
+        # (with no payload these are the hand's and the coupler's terms alone, bit for bit)
+        m_hand, m_coupler = self._masses
+        self._mo, self._ml = m_hand + m_coupler, m_hand * self._hand_offset
+        for m, x in self.payload:
+            self._mo, self._ml = self._mo + m, self._ml + m * x
         self._gravity = tuple(p.environment.gravity)
         self._terms_key: tuple[float, float] | None = None
         self._terms = None
@@ -423,11 +435,10 @@ class AnalyticController:
     def _gravity_from_derivatives(self, dOc, dxc) -> tuple[float, float]:
         """dV_g/du from dO_c/du and dx_c/du (columns j = RUD, FE), element-wise: floats, or (N,) arrays for a batch.
 
-        V_g = -sum m_i g . p_i with p_hand = O_c + L x_c, p_coupler = O_c, so
-        dV_g/du_j = -g . ((m_hand + m_coupler) dO_c/du_j + m_hand L dx_c/du_j)."""
+        V_g = -sum m_i g . p_i with p_hand = O_c + L x_c, p_coupler = O_c (a payload mass m at O_c + x x_c), so
+        dV_g/du_j = -g . ((m_hand + m_coupler + sum m) dO_c/du_j + (m_hand L + sum m x) dx_c/du_j)."""
         gx, gy, gz = self._gravity
-        m_hand, m_coupler = self._masses
-        mo, ml = m_hand + m_coupler, m_hand * self._hand_offset
+        mo, ml = self._mo, self._ml
         out = []
         for (ox, oy, oz), (xx, xy, xz) in zip(dOc, dxc):
             out.append(-(gx * (mo * ox + ml * xx) + gy * (mo * oy + ml * xy) + gz * (mo * oz + ml * xz)))
@@ -445,6 +456,8 @@ class AnalyticController:
         g = np.asarray(self._gravity)
         m_hand, m_coupler = self._masses
         dV = -(m_hand * (dOc + self._hand_offset * dxc) + m_coupler * dOc).T @ g
+        for m, x in self.payload:
+            dV = dV - (m * (dOc + x * dxc)).T @ g
         J = np.asarray(Ja)
         w = np.array([float(dV[0]), float(dV[1])])
         tg = J @ np.linalg.solve(J.T @ J, w)

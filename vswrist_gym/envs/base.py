@@ -161,7 +161,8 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._SimulationError = SimulationError
         self._build_sim(self.nominal_params)
         self.ctrl = _import_controller()(params=self.nominal_params, dt=self.ctrl_dt,
-                                         gravity_compensation=cfg["gravity_compensation"])
+                                         gravity_compensation=cfg["gravity_compensation"],
+                                         payload=self._compensated_payload() if cfg["compensate_tool"] else ())
 
         rom = self.nominal_params.range_of_motion
         self.posture_map = PostureMap([rom.rud_min, rom.fe_min, rom.ps_min], [rom.rud_max, rom.fe_max, rom.ps_max])

@@ -137,6 +137,8 @@ def validate_common(cfg: dict, defaults: Mapping[str, Any]) -> None:
         raise EnvConfigError(f"'params' must name a device preset or a YAML path, got {cfg['params']!r}")
     if not isinstance(cfg["gravity_compensation"], bool):
         raise EnvConfigError(f"'gravity_compensation' must be true or false, got {cfg['gravity_compensation']!r}")
+    if not isinstance(cfg["compensate_tool"], bool):
+        raise EnvConfigError(f"'compensate_tool' must be true or false, got {cfg['compensate_tool']!r}")
     cfg["ctrl_dt"] = number("ctrl_dt", cfg["ctrl_dt"], 0.0, 0.1, lo_open=True)
     if cfg["physics_dt"] is not None:
         cfg["physics_dt"] = number("physics_dt", cfg["physics_dt"], 0.0, cfg["ctrl_dt"], lo_open=True)

@@ -1,5 +1,5 @@
-"""``VSWrist/Drill-v1`` (and ``-v0``): hold the tool's posture against an oscillating torque and an axial thrust
-while the PS motor turns the tool.
+"""``VSWrist/Drill-v2`` (and ``-v1``, ``-v0``): hold the tool's posture against an oscillating torque and an axial
+thrust while the PS motor turns the tool.
 
 The drill bit is a capsule on the tool. While the drill is engaged (random onset and duration) the hand feels
 a torque A sin(2 pi f t + phi) about a random axis perpendicular to the tool and a thrust F along the tool
@@ -7,7 +7,9 @@ towards the wrist (the reaction of the workpiece); the PS reference turns at con
 stiffness pays: the disturbance acts for only part of the episode, and preload energy is worth paying only
 while it does. In v1 the observation's ``engage_cue`` announces the engagement ``cue_lead_s`` ahead and stays on
 until the drill releases; v0 (the same task, its observation without the cue) leaves the engagement to be seen in
-the tool wrench and the posture error, too late to stiffen.
+the tool wrench and the posture error, too late to stiffen. In v2 (v1 with ``compensate_tool``) the controller's
+gravity compensation also holds the drill's nominal weight, known to whoever hands the agent the drill: v1 and v0
+leave it uncompensated, a static RUD error of about 0.009 rad at s = +0.5 that a fixed posture offset removes.
 
 Success: RMS (RUD, FE) error while engaged below ``success_error`` and mean elastic energy below
 ``success_energy``.
@@ -33,8 +35,11 @@ class DrillEnv(VSWristEnv):
 
     @property
     def task_id(self) -> str:
-        """v1 announces the drill in its observation (``engage_cue``); v0 is the same task without the cue."""
-        return "VSWrist/Drill-v1" if "engage_cue" in self.cfg["observation"] else "VSWrist/Drill-v0"
+        """v1 announces the drill in its observation (``engage_cue``); v0 is the same task without the cue; v2 is
+        v1 with the drill's nominal weight compensated (``compensate_tool``)."""
+        if "engage_cue" not in self.cfg["observation"]:
+            return "VSWrist/Drill-v0"
+        return "VSWrist/Drill-v2" if self.cfg["compensate_tool"] else "VSWrist/Drill-v1"
 
     success_text = ("RMS RUD/FE error while engaged < {success_error:g} rad and mean elastic energy "
                     "< {success_energy:g} J")

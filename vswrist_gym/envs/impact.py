@@ -1,6 +1,10 @@
-"""``VSWrist/Impact-v0``: follow a flexion/extension motion during which the tool may meet an obstacle.
+"""``VSWrist/Impact-v1`` (and ``-v0``): follow a flexion/extension motion during which the tool may meet an obstacle.
 
-The tool is heavy (``tool_mass``, not compensated by the controller). The reference moves FE from ``fe_start``
+The tool is heavy (``tool_mass``). In v1 the controller's gravity compensation holds its nominal weight
+(``compensate_tool``), as it holds the hand's: the task gives the agent this tool, so its weight is known, and
+left uncompensated it sags the wrist by about 0.06 rad in RUD at the softest stiffness, a static error that a
+fixed posture offset removes and no stiffness schedule should be credited with. v0 (the same task without it)
+leaves that sag. The reference moves FE from ``fe_start``
 to ``fe_end`` (minimum jerk, ``move_s``) and back, at a random RUD and PS. In most episodes
 (``obstacle_probability``) a wall stands across the tool's path at a random fraction of the way; the agent is
 not told where. Adapting stiffness pays: a stiff wrist tracks the free motion closely (the tool's weight and
@@ -24,7 +28,12 @@ WALL_HALF = (0.01, 0.03, 0.035)  # m: thickness (along the motion), along the to
 
 class ImpactEnv(VSWristEnv):
     task = "impact"
-    task_id = "VSWrist/Impact-v0"
+
+    @property
+    def task_id(self) -> str:
+        """v1 compensates the tool's nominal weight (``compensate_tool``); v0 is the same task without."""
+        return "VSWrist/Impact-v1" if self.cfg["compensate_tool"] else "VSWrist/Impact-v0"
+
     summary = "follow an FE motion that may meet an unexpected obstacle; keep the peak force low while tracking"
     success_text = ("peak contact force < {success_force:g} N and RMS posture error without contact "
                     "< {success_error:g} rad")

@@ -83,6 +83,32 @@ class SceneMixin:
         spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_TOUCH, objtype=mujoco.mjtObj.mjOBJ_SITE,
                         objname=f"{name}_site")
 
+    def _compensated_payload(self) -> tuple[tuple[float, float], ...]:
+        """The parts besides the hand whose weight the controller holds when ``compensate_tool`` is set, as
+        ``AnalyticController``'s payload: the PS flange and the task's tool at their nominal (built) masses, each at
+        its centre of mass's distance along the PS axis from the coupler centre, read from the compiled model. Both
+        are known to whoever designs the task and gives the agent its tool; the tool's random mass factor
+        (``randomize.tool_mass``) and the task's loads are not. A centre of mass off the PS axis (an L-shaped tool's
+        few mm) is taken at its projection on the axis: its offset's load turns with PS."""
+        m = self.model
+        coupler = m.body("coupler").id
+        out = []
+        for name, mass in (("ps", None), ("tool", self._nominal_tool_mass)):
+            b = m.body(name).id
+            R, p = np.eye(3), np.zeros(3)  # the body's frame in the coupler frame (x: the PS axis)
+            chain = []
+            while b != coupler:
+                chain.append(b)
+                b = int(m.body_parentid[b])
+            for b in reversed(chain):
+                Rb = np.zeros(9)
+                mujoco.mju_quat2Mat(Rb, m.body_quat[b])
+                p, R = p + R @ m.body_pos[b], R @ Rb.reshape(3, 3)
+            mass = float(m.body_mass[chain[0]]) if mass is None else mass
+            if mass > 0.0:
+                out.append((mass, float((p + R @ m.body_ipos[chain[0]])[0])))
+        return tuple(out)
+
     def tool_point(self, u, ps, p_tool) -> np.ndarray:
         """World position (m) of point ``p_tool`` (tool frame) at posture u (2,), PS angle ps, from the analytic
         kinematics: O_c + R_c Rx(ps) (hand_offset e_x + p_tool). Used to place task objects. Stacks (u (..., 2),
