@@ -212,6 +212,34 @@ def test_gravity_compensation_balances_the_weight_of_hand_and_coupler():
         np.testing.assert_allclose(Ja.T @ tau, dV, atol=1e-7)
 
 
+def test_gravity_compensation_holds_a_payload_on_the_ps_axis():
+    """With a payload of point masses (m, x) at O_c + x x_c, tau_g balances their weight too (V_g from the exact
+    forward kinematics); without one, the torques are those of the hand and coupler alone, to the bit."""
+    p = load_params()
+    kin = WristKinematics(p)
+    payload = ((0.03, 0.02), (0.3, 0.17))
+    ctrl = AnalyticController(p, gravity_compensation=True, payload=payload)
+    plain, empty = AnalyticController(p, gravity_compensation=True), AnalyticController(p, gravity_compensation=True,
+                                                                                           payload=())
+    g = np.asarray(p.environment.gravity)
+
+    def V(u):
+        T = kin.coupler_pose(u, allow_outside=True)
+        points = [(p.inertia.hand_mass, p.inertia.hand_offset), (p.inertia.coupler_mass, 0.0), *payload]
+        return -sum(m * (T[:3, 3] + x * T[:3, 0]) for m, x in points) @ g
+
+    h = 1e-6
+    for u in _postures(kin, 6, seed=5):
+        dV = np.array([(V(u + e) - V(u - e)) / (2 * h) for e in (np.array([h, 0]), np.array([0, h]))])
+        np.testing.assert_allclose(ctrl.gravity_torque(u), dV, atol=1e-7)
+        theta = ctrl.step([u[0], u[1], 0.0], lam=0.0)
+        q1, Ja, _ = ctrl.kinematics_at(u)
+        np.testing.assert_allclose(Ja.T @ spring_torque(q1 - theta[:3], p), dV, atol=1e-7)
+        assert np.array_equal(plain.step([u[0], u[1], 0.0], lam=0.3), empty.step([u[0], u[1], 0.0], lam=0.3))
+    with pytest.raises(ValueError, match="payload"):
+        AnalyticController(p, gravity_compensation=True, payload=((-0.1, 0.1),))
+
+
 # ------------------------------------------------------------------ closed loop in the MuJoCo simulator
 def _settle(sim, max_s=30.0):
     for _ in range(int(max_s / 0.1)):
