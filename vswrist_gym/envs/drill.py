@@ -64,7 +64,7 @@ class DrillEnv(VSWristEnv):
     def _task_obs_terms(self):
         from .observations import ObsTerm
         return [ObsTerm("engage_cue", 1, "-", f"1 from {self.cue_lead_s:g} s before the drill engages until it "
-                        "releases (the announced drill: Drill-v1), else 0", self._obs_engage_cue, 0.0, 1.0)]
+                        "releases (the announced drill: Drill-v1 on), else 0", self._obs_engage_cue, 0.0, 1.0)]
 
     def _obs_engage_cue(self) -> np.ndarray:
         t = self._t + 1e-12
