@@ -6,7 +6,7 @@ group of observation terms held at their value of the episode's first observatio
 how they change). Printed per task and group: its mean paired gain over the selected constant (standard error).
 A gain that collapses when a group is frozen rests on that group.
 
-    python experiments/gate/obs_ablation.py [TASK_ID ...]
+    PYTHONPATH=. python experiments/gate/obs_ablation.py [TASK_ID ...]
 """
 
 import json

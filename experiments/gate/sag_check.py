@@ -10,7 +10,7 @@ chosen on.
   rad in steps of 0.01 (FE and PS trims 0; the trims ``trim_diagnostic.py`` found were RUD);
 * rule: the gate's observation-only rule (``gate.rule_agent``) at each of its ten (soft, stiff) pairs.
 
-    python experiments/gate/sag_check.py [TASK_ID ...]
+    PYTHONPATH=. python experiments/gate/sag_check.py [TASK_ID ...]
 """
 
 import sys

@@ -19,7 +19,7 @@ share of the error:
 * ``tool compensated``: ``compensate_tool: true`` (the controller also holds the PS flange and the tool at their
   nominal masses).
 
-    python experiments/gate/sag_diagnostic.py [TASK_ID ...] [--variants as_is,no_tool,...]
+    PYTHONPATH=. python experiments/gate/sag_diagnostic.py [TASK_ID ...] [--variants as_is,no_tool,...]
 """
 
 import argparse
@@ -90,7 +90,6 @@ def run(env_id, variant, constant):
                 ret += r
                 done = term or trunc
             err = np.array(u._history["error"])
-            ref = u._references[1:len(err) + 1]
             speed = np.abs(np.gradient(u._references[:len(err) + 1], u.ctrl_dt, axis=0))[1:]
             free = _free_mask(u, len(err))
             still = free & np.all(speed < STILL, axis=1)
@@ -98,7 +97,6 @@ def run(env_id, variant, constant):
             free_all.append(err[free])
             still_all.append(err[still])
             rets.append(ret)
-            del ref
     env.close()
     f, st, ld = np.concatenate(free_all), np.concatenate(still_all), np.concatenate(loaded_all)
     return (f.mean(axis=0), st.mean(axis=0) if len(st) else np.full(3, np.nan), len(st), float(np.mean(rets)),
