@@ -26,6 +26,7 @@ if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ and not (
 ENV_IDS = {
     "VSWrist/LoadHold-v0": "vswrist_gym.envs.load_hold:LoadHoldEnv",
     "VSWrist/LoadHold-v1": "vswrist_gym.envs.load_hold:LoadHoldEnv",
+    "VSWrist/LoadHold-v2": "vswrist_gym.envs.load_hold:LoadHoldEnv",
     "VSWrist/Polish-v0": "vswrist_gym.envs.polish:PolishEnv",
     "VSWrist/Polish-v1": "vswrist_gym.envs.polish:PolishEnv",
     "VSWrist/Impact-v0": "vswrist_gym.envs.impact:ImpactEnv",
@@ -43,9 +44,11 @@ ENV_IDS = {
 ENV_KWARGS = {
     "VSWrist/Polish-v0": {"id_config": {"task": {"contact_force": "last_substep"}}},  # the touch sensor's sample
     # without the cue that announces the load's onset (load_cue) or the drill's engagement (engage_cue)
-    "VSWrist/LoadHold-v0": {"id_config": {"observation": [
+    "VSWrist/LoadHold-v0": {"id_config": {"task": {"load_cone": 0.6}, "observation": [
         "posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action",
         "target", "phase"]}},
+    # the load within 0.6 rad of gravity (hung on the hand) rather than in any direction
+    "VSWrist/LoadHold-v1": {"id_config": {"task": {"load_cone": 0.6}}},
     "VSWrist/Drill-v0": {"id_config": {"compensate_tool": False, "observation": [
         "posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam", "prev_action",
         "target", "tool_wrench", "phase"]}},

@@ -10,9 +10,10 @@ chosen on.
   rad in steps of 0.01 (FE and PS trims 0; the trims ``trim_diagnostic.py`` found were RUD);
 * rule: the gate's observation-only rule (``gate.rule_agent``) at each of its ten (soft, stiff) pairs.
 
-    PYTHONPATH=. python experiments/gate/sag_check.py [TASK_ID ...]
+    PYTHONPATH=. python experiments/gate/sag_check.py [TASK_ID ...] [--config JSON]
 """
 
+import json
 import sys
 
 import numpy as np
@@ -34,9 +35,12 @@ class Fixed:
         return self.a, None
 
 
+CONFIG: dict = {}  # --config JSON: settings over the id's (an exploratory task change)
+
+
 def trim_kwargs(c):
-    return {"config": {"action_mode": "residual", "residual": {"posture_scale": SCALE, "stiffness_scale": 0.0,
-                                                                 "stiffness_nominal": float(c)}}}
+    return {"config": {**CONFIG, "action_mode": "residual",
+                       "residual": {"posture_scale": SCALE, "stiffness_scale": 0.0, "stiffness_nominal": float(c)}}}
 
 
 def trim_agent(rud):
@@ -46,7 +50,7 @@ def trim_agent(rud):
 def main(ids):
     for env_id in ids:
         run = lambda make, seeds, kw=None: np.array(  # noqa: E731
-            gate.episode_returns(env_id, make, seeds, EPISODES, kw or {"config": {}}))
+            gate.episode_returns(env_id, make, seeds, EPISODES, kw or {"config": dict(CONFIG)}))
         const = {c: run(gate.constant_agent(c), CHOOSE) for c in CONSTANT_COMMANDS}
         c = max(const, key=lambda k: const[k].mean())
         trims = {t: run(trim_agent(t), CHOOSE, trim_kwargs(c)) for t in TRIMS}
@@ -62,5 +66,10 @@ def main(ids):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["VSWrist/Impact-v0", "VSWrist/Impact-v1", "VSWrist/Drill-v1", "VSWrist/Drill-v2",
+    args = sys.argv[1:]
+    if "--config" in args:
+        k = args.index("--config")
+        CONFIG.update(json.loads(args[k + 1]))
+        del args[k:k + 2]
+    main(args or ["VSWrist/Impact-v0", "VSWrist/Impact-v1", "VSWrist/Drill-v1", "VSWrist/Drill-v2",
                           "VSWrist/LoadHold-v1"])

@@ -1,8 +1,11 @@
-"""``VSWrist/LoadHold-v1`` (and ``-v0``): hold posture references while an unknown load hangs on the hand.
+"""``VSWrist/LoadHold-v2`` (and ``-v1``, ``-v0``): hold posture references while an unknown load acts on the hand.
 
 The paper's experiment (1.5 kg at the hand from 0.5 s), generalised: 1-3 piecewise-constant posture references
-(smooth 0.6 s transitions), a load of random mass, onset time and direction (within a cone around gravity)
-applied at the hand centre. Adapting stiffness pays: before the load arrives a soft wrist holds the posture
+(smooth 0.6 s transitions), a load of random mass, onset time and direction (its angle from gravity drawn
+uniformly up to ``load_cone``) applied at the hand centre. In v1 and v0 the load hangs within 0.6 rad of gravity,
+so its mean is a downward force whose sag (about 0.056 rad in RUD at s = +0.5) a fixed posture trim removes; v2
+draws the angle over [0, pi], a push or pull of any direction with zero mean, so that only a stiffer wrist, not
+a posture offset, keeps the load's error small. Adapting stiffness pays: before the load arrives a soft wrist holds the posture
 without preload energy; after it arrives only a stiff wrist keeps the posture error small. In v1 the
 observation's ``load_cue`` announces the load ``cue_lead_s`` ahead, so that an agent can be stiff in time; v0 (the
 same task, its observation without the cue) leaves the onset to be seen in the posture error, too late to stiffen.
@@ -27,12 +30,17 @@ class LoadHoldEnv(VSWristEnv):
     @property
     def summary(self) -> str:
         text = "track posture references while an unknown load (mass, onset, direction) hangs on the hand"
+        if self.tp["load_cone"] >= np.pi:
+            text = "track posture references while an unknown load (mass, onset, any direction) acts on the hand"
         return text + "; `load_cue` announces it 0.5 s ahead" if "load_cue" in self.cfg["observation"] else text
 
     @property
     def task_id(self) -> str:
-        """v1 announces the load in its observation (``load_cue``); v0 is the same task without the cue."""
-        return "VSWrist/LoadHold-v1" if "load_cue" in self.cfg["observation"] else "VSWrist/LoadHold-v0"
+        """v1 announces the load in its observation (``load_cue``); v0 is the same task without the cue; v2 is v1
+        with the load in any direction (``load_cone`` pi)."""
+        if "load_cue" not in self.cfg["observation"]:
+            return "VSWrist/LoadHold-v0"
+        return "VSWrist/LoadHold-v2" if self.tp["load_cone"] >= np.pi else "VSWrist/LoadHold-v1"
 
     success_text = ("RMS RUD/FE error over the last {success_window:g} s < {success_error:g} rad and mean "
                     "elastic energy < {success_energy:g} J")
@@ -56,7 +64,7 @@ class LoadHoldEnv(VSWristEnv):
     def _task_obs_terms(self):
         from .observations import ObsTerm
         return [ObsTerm("load_cue", 1, "-", f"1 from {self.cue_lead_s:g} s before the load arrives on (the "
-                        "announced load: LoadHold-v1), else 0", self._obs_load_cue, 0.0, 1.0)]
+                        "announced load: LoadHold-v1 on), else 0", self._obs_load_cue, 0.0, 1.0)]
 
     def _obs_load_cue(self) -> np.ndarray:
         return np.array([1.0 if self._t + 1e-12 >= self._onset - self.cue_lead_s else 0.0])

@@ -1,10 +1,14 @@
-"""Impact-v1 and Drill-v2: the controller's gravity compensation also holds the PS flange and the task's tool.
+"""New versions that leave no static posture offset for a posture trim to find: Impact-v1 and Drill-v2 (the
+controller's gravity compensation also holds the PS flange and the task's tool) and LoadHold-v2 (the load in any
+direction, so that its mean is zero).
 
 Checked against physics computed here, not against the code's output: the static sag of the wrist under the
 tool's weight, the weight's moment divided by the coupler stiffness of the domain notes (home posture, no
 preload: Sigma_c = 0.375 sigma I, sigma = 2 K / delta0), must appear in the old versions and be gone, down to
-what the compensation leaves out (the legs' weight), in the new ones. The old versions must be unchanged: their
-reference agent's mean return on the gate's tuning episodes is the one the committed gate result recorded.
+what the compensation leaves out (the legs' weight), in the new ones; the load's mean direction, E[cos] = sin(c)/c
+along gravity for an angle drawn uniformly in [0, c], must be 0.94 of a downward load in LoadHold-v1 and zero in
+v2. The old versions must be unchanged: their reference agent's mean return on the gate's tuning episodes is the
+one the committed gate result recorded.
 """
 
 from __future__ import annotations
@@ -59,11 +63,32 @@ def _static_error(env_id: str, task: str) -> np.ndarray:
 def test_new_versions_are_registered_and_newest():
     assert vswrist_gym.LATEST["Impact"] == "VSWrist/Impact-v1"
     assert vswrist_gym.LATEST["Drill"] == "VSWrist/Drill-v2"
+    assert vswrist_gym.LATEST["LoadHold"] == "VSWrist/LoadHold-v2"
     for env_id, comp in (("VSWrist/Impact-v0", False), ("VSWrist/Impact-v1", True), ("VSWrist/Drill-v0", False),
-                         ("VSWrist/Drill-v1", False), ("VSWrist/Drill-v2", True)):
+                         ("VSWrist/Drill-v1", False), ("VSWrist/Drill-v2", True), ("VSWrist/LoadHold-v0", False),
+                         ("VSWrist/LoadHold-v1", False), ("VSWrist/LoadHold-v2", False)):
         u = _make(env_id).unwrapped
         assert u.task_id == env_id and u.cfg["compensate_tool"] is comp
         assert bool(u.ctrl.payload) is comp
+    cones = {v: _make(f"VSWrist/LoadHold-v{v}").unwrapped.tp["load_cone"] for v in (0, 1, 2)}
+    assert cones == {0: 0.6, 1: 0.6, 2: math.pi}
+
+
+@pytest.mark.parametrize("env_id,cone", [("VSWrist/LoadHold-v1", 0.6), ("VSWrist/LoadHold-v2", math.pi)])
+def test_the_load_has_a_mean_sag_in_v1_and_none_in_v2(env_id, cone):
+    """The load's direction over many episodes: its mean along gravity is E[cos a] = sin(c)/c for an angle a drawn
+    uniformly in [0, c] (0.94 for a hung load within 0.6 rad; 0 for any direction), across gravity zero."""
+    u = _make(env_id).unwrapped
+    down = np.array([0.0, 0.0, -1.0])
+    dirs = []
+    for k in range(2000):
+        u._task_reset(np.random.default_rng(k))
+        f = u.load_info()["force"]
+        dirs.append(f / np.linalg.norm(f))
+    mean = np.mean(dirs, axis=0)
+    tol = 4 * np.std(dirs, axis=0).max() / math.sqrt(len(dirs))   # 4 standard errors of a mean of unit vectors
+    assert mean @ down == pytest.approx(math.sin(cone) / cone, abs=tol)
+    assert np.linalg.norm(mean - (mean @ down) * down) < tol
 
 
 @pytest.mark.parametrize("task,old,new,tool_mass,tool_com", [
@@ -91,7 +116,7 @@ def test_the_tool_sags_the_old_versions_and_not_the_new(task, old, new, tool_mas
     assert abs(e_old[1]) < 0.1 * sag and abs(e_new[1]) < legs
 
 
-@pytest.mark.parametrize("env_id", ["VSWrist/Impact-v0", "VSWrist/Drill-v1"])
+@pytest.mark.parametrize("env_id", ["VSWrist/Impact-v0", "VSWrist/Drill-v1", "VSWrist/LoadHold-v1"])
 def test_old_versions_keep_their_reference_agent(env_id):
     """The reference agent at the gate's selected constant, on the gate's 100 tuning episodes, returns on average
     what the committed gate result recorded. On one machine the runs repeat bit for bit; across machines the
