@@ -51,7 +51,7 @@ def test_the_posture_track_is_the_gates_posture_only_policy():
 def test_unknown_track_and_missing_entry_are_refused():
     with pytest.raises(benchmark.BenchmarkError, match="track must be one of"):
         benchmark.track_entry("VSWrist/Throw-v0", "ppo", "posture-only", 0.0)
-    with pytest.raises(benchmark.BenchmarkError, match="no entry for"):
+    with pytest.raises(gate.GateError, match="no entry for"):
         benchmark.track_entry("VSWrist/Nothing-v0", "ppo", "full", 0.0)
 
 

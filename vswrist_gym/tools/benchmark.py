@@ -31,7 +31,6 @@ committed); ``--write`` rebuilds the ``leaderboard`` block of a markdown file fr
 from __future__ import annotations
 
 import argparse
-import copy
 import datetime
 import json
 import math
@@ -45,8 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from vswrist_gym.agents.protocol import BENCHMARK_TRAIN_SEEDS, HELDOUT_EVAL_SEEDS, mean_ci, reset_seed
-from vswrist_gym.tools.gate import (EPISODES_PER_SEED, POSTURE_SCALE, GateError, check_heldout_seeds, paired,
-                                    result_path)
+from vswrist_gym.tools.gate import (EPISODES_PER_SEED, POSTURE_SCALE, GateError, check_heldout_seeds, packaged_entry,
+                                    paired, publish, result_path)
 
 TRACKS = ("stiffness", "full", "posture")
 ALGOS = ("ppo", "sac")
@@ -64,22 +63,12 @@ class BenchmarkError(GateError):
 def track_entry(env_id: str, algo: str, track: str, best_constant: float, budget: int | None = None) -> dict:
     """The hyperparameter file's content (the entry and its ``vswrist:`` run settings) of one cell: the packaged
     entry of ``env_id`` (or of the task's newest version that has one) on ``track``."""
-    from vswrist_gym.agents.hparams import default_config_path, read_file
-
     if track not in TRACKS:
         raise BenchmarkError(f"track must be one of {', '.join(TRACKS)}, got {track!r}")
-    data, section = read_file(default_config_path(algo))
-    source = env_id if env_id in data else None
-    if source is None:
-        short = env_id.split("/")[-1].rsplit("-v", 1)[0]
-        found = sorted(k for k in data if k.split("/")[-1].rsplit("-v", 1)[0] == short)
-        if not found:
-            raise BenchmarkError(f"configs/{algo}.yaml has no entry for {env_id} or another version of it")
-        source = found[-1]
-    entry = copy.deepcopy(data[source])
+    entry, settings = packaged_entry(env_id, algo)
     kwargs = dict(entry.get("env_kwargs") or {})
     if kwargs.get("action_mode", "residual") != "residual":
-        raise BenchmarkError(f"configs/{algo}.yaml: the entry of {source} has action_mode "
+        raise BenchmarkError(f"configs/{algo}.yaml: the entry of {env_id} has action_mode "
                              f"{kwargs['action_mode']!r}; the benchmark's tracks need 'residual'")
     residual = dict(kwargs.get("residual") or {})
     posture = float(residual.get("posture_scale") or 0.0) or POSTURE_SCALE
@@ -92,7 +81,7 @@ def track_entry(env_id: str, algo: str, track: str, best_constant: float, budget
     entry["env_kwargs"] = {**kwargs, "action_mode": "residual", "residual": residual}
     if budget is not None:
         entry["n_timesteps"] = int(budget)
-    return {env_id: entry, "vswrist": {env_id: dict(section.get(source, {}))}}
+    return {env_id: entry, "vswrist": {env_id: settings}}
 
 
 def cell_budget(env_id: str, algo: str, budget: int | None) -> int:
@@ -435,20 +424,7 @@ def main(argv: list[str] | None = None) -> int:
             except GateError as exc:
                 print(f"vswrist benchmark: {exc}", file=sys.stderr)
                 return 2
-    docs = [json.loads(result_path(out, i).read_text()) for i in ids if result_path(out, i).is_file()]
-    if not docs:
-        print(f"vswrist benchmark: no results in {out} for {' '.join(ids)}", file=sys.stderr)
-        return 2
-    table = leaderboard(docs)
-    print(table)
-    if args.write:
-        from vswrist_gym.tools.table import update
-
-        path = Path(args.write)
-        path.write_text(update(path.read_text(), {"leaderboard": table}))
-        print(f"{path}: leaderboard block updated")
-    return 0
-
+    return publish("vswrist benchmark", out, ids, "leaderboard", leaderboard, args.write)
 
 if __name__ == "__main__":
     raise SystemExit(main())

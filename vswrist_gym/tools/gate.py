@@ -208,24 +208,30 @@ def posture_only_entry(env_id: str, best_constant: float, budget: int = BUDGET) 
     """The packaged PPO entry of ``env_id`` (its own or, for a version without one, its task's newest entry) in the
     residual mode with the stiffness fixed at ``best_constant`` and a ``POSTURE_SCALE`` posture residual, as a
     hyperparameter file's content (the entry and its ``vswrist:`` run settings)."""
+    entry, settings = packaged_entry(env_id, "ppo")
+    entry["n_timesteps"] = int(budget)
+    entry["env_kwargs"] = {**entry.get("env_kwargs", {}), "action_mode": "residual",
+                           "residual": {"posture_scale": POSTURE_SCALE, "stiffness_scale": 0.0,
+                                        "stiffness_nominal": float(best_constant)}}
+    return {env_id: entry, "vswrist": {env_id: settings}}
+
+
+def packaged_entry(env_id: str, algo: str) -> tuple[dict, dict]:
+    """A copy of the packaged ``configs/<algo>.yaml`` entry of ``env_id`` (or, for a version without one, of its
+    task's newest version that has one) and its ``vswrist:`` run settings."""
     import copy
 
     from vswrist_gym.agents.hparams import default_config_path, read_file
 
-    data, section = read_file(default_config_path("ppo"))
+    data, section = read_file(default_config_path(algo))
     source = env_id if env_id in data else None
     if source is None:
         short = env_id.split("/")[-1].rsplit("-v", 1)[0]
         found = sorted(k for k in data if k.split("/")[-1].rsplit("-v", 1)[0] == short)
         if not found:
-            raise GateError(f"configs/ppo.yaml has no entry for {env_id} or another version of it")
+            raise GateError(f"configs/{algo}.yaml has no entry for {env_id} or another version of it")
         source = found[-1]
-    entry = copy.deepcopy(data[source])
-    entry["n_timesteps"] = int(budget)
-    entry["env_kwargs"] = {**entry.get("env_kwargs", {}), "action_mode": "residual",
-                           "residual": {"posture_scale": POSTURE_SCALE, "stiffness_scale": 0.0,
-                                        "stiffness_nominal": float(best_constant)}}
-    return {env_id: entry, "vswrist": {env_id: dict(section.get(source, {}))}}
+    return copy.deepcopy(data[source]), dict(section.get(source, {}))
 
 
 def train_posture_only(env_id: str, best_constant: float, seed: int, runs_dir: Path, budget: int = BUDGET,
@@ -467,19 +473,25 @@ def main(argv: list[str] | None = None) -> int:
             except GateError as exc:
                 print(f"vswrist gate: {exc}", file=sys.stderr)
                 return 2
+    return publish("vswrist gate", out, ids, "gate", gate_table, args.write, keep=lambda d: "selection" in d)
+
+
+def publish(prog: str, out: Path, ids, block: str, make_table, write: str | None, keep=lambda doc: True) -> int:
+    """Print the table ``make_table(docs)`` of the result files ``OUT/<Task>-vN.json`` of ``ids`` and, with
+    ``write``, rebuild the generated ``block`` of that markdown file; 2 when there is nothing to show."""
     docs = [json.loads(result_path(out, i).read_text()) for i in ids if result_path(out, i).is_file()]
-    docs = [d for d in docs if "selection" in d]
+    docs = [d for d in docs if keep(d)]
     if not docs:
-        print(f"vswrist gate: no results in {out} for {' '.join(ids)}", file=sys.stderr)
+        print(f"{prog}: no results in {out} for {' '.join(ids)}", file=sys.stderr)
         return 2
-    table = gate_table(docs)
+    table = make_table(docs)
     print(table)
-    if args.write:
+    if write:
         from vswrist_gym.tools.table import update
 
-        path = Path(args.write)
-        path.write_text(update(path.read_text(), {"gate": table}))
-        print(f"{path}: gate block updated")
+        path = Path(write)
+        path.write_text(update(path.read_text(), {block: table}))
+        print(f"{path}: {block} block updated")
     return 0
 
 
