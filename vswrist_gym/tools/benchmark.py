@@ -193,7 +193,8 @@ def cell_summary(cell: dict, constant: list[float], headroom: float) -> dict:
     """Mean and 95 % Student-t interval over training seeds of each per-seed measure; the learned verdict."""
     per_seed = {s: seed_scores(r, constant, headroom) for s, r in cell["runs"].items()}
     keys = ("return", "vs_constant", "score", "success", "freeze")
-    out = {k: mean_ci([p[k] for p in per_seed.values() if k in p]) for k in keys}
+    out = {k: mean_ci([p[k] for p in per_seed.values() if k in p], bounds=(0.0, 1.0) if k == "success" else
+                      (-math.inf, math.inf)) for k in keys}
     out["seeds"] = len(per_seed)
     out["learned"] = bool(out["vs_constant"]["low"] > 0 and "freeze" in next(iter(per_seed.values()), {})
                           and out["freeze"]["low"] > 0) if per_seed else False
