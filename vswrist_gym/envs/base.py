@@ -194,7 +194,6 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
             self.obs_slices[t.name] = slice(i, i + t.size)
             i += t.size
         self.obs_size = i
-        self._obs_plan = [(self.obs_slices[t.name].start, self.obs_slices[t.name].stop, t.fn) for t in self.obs_terms]
         bound = lambda b, t: np.broadcast_to(np.asarray(b, dtype=np.float32), (t.size,))  # noqa: E731
         self._obs_low = np.concatenate([bound(t.low, t) for t in self.obs_terms]).astype(np.float32)
         self._obs_high = np.concatenate([bound(t.high, t) for t in self.obs_terms]).astype(np.float32)
@@ -522,8 +521,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         """Pickle the settings and the full episode state; MuJoCo objects are rebuilt on load."""
         state = {k: v for k, v in self.__dict__.items()
                  if k not in ("sim", "model", "data", "_renderer", "_viewer", "_WristSim", "_terms", "obs_terms",
-                              "_SimulationError",
-                              "_obs_plan")}
+                              "_SimulationError")}
         state["_sim_state"] = self.sim.get_state()
         state["_model_mutable"] = (self.model.body_mass.copy(), self.model.body_inertia.copy(),
                                    self.model.geom_friction.copy(), self.model.dof_frictionloss.copy())
@@ -551,4 +549,3 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self.sim.set_state(sim_state)
         self._terms = self._obs_terms()
         self.obs_terms = [self._terms[n] for n in self.cfg["observation"]]
-        self._obs_plan = [(self.obs_slices[t.name].start, self.obs_slices[t.name].stop, t.fn) for t in self.obs_terms]

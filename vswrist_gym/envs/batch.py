@@ -61,9 +61,10 @@ from gymnasium.vector.utils import batch_space
 
 from ..batch_sim import DIVERGED, OK, BatchSim
 from ..sim import DIVERGED_MESSAGE
-from ..stiffness import SpringLaw, spring_energy, spring_stiffness, spring_torque
+from ..stiffness import SpringLaw, spring_energy
 from .actions import check_action
 from .base import VSWristEnv
+from .observations import observe
 from .rewards import wrap_angle
 from .shared import PeriodMeanForce
 
@@ -77,13 +78,7 @@ MIN_CHUNK_WORLDS = 4
 # refused: the batch would not run the override); the hooks it calls per world, or over arrays
 # (``_tracking_error``), stay the task's
 STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
-                "_raw_observation", "_draw_noise", "_obs_posture", "_obs_posture_rate", "_obs_contact",
-                "_obs_spring_torques", "_obs_stiffness", "_obs_terms")
-
-# observation terms the batch computes over arrays from what it measured; the others are read world by world
-# (from each world's simulator, or a task's own term)
-ARRAY_TERMS = ("posture", "posture_rate", "motor_angles", "deflections", "spring_torques", "stiffness", "lam",
-               "prev_action", "target", "contact_force", "phase")
+                "_draw_noise", "_obs_terms")
 
 
 def _row_sum_sq(x: np.ndarray) -> np.ndarray:
@@ -113,6 +108,39 @@ def default_threads() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - macOS, Windows
         return max(1, os.cpu_count() or 1)
+
+
+class BatchMeasures:
+    """``observations.observe``'s measures of a batch's live worlds after a step: (N, ...) arrays, and the reads
+    of their simulators over arrays from the gathered rows ``G`` (``BatchSim``'s reads)."""
+
+    __slots__ = ("worlds", "bsim", "G", "posture", "deflections", "Q", "law", "contact", "lam", "prev_action",
+                 "target", "step", "noise")
+
+    def __init__(self, worlds, bsim, G, P, D, Q, law, contact, lam, prev_action, target, step, noise):
+        self.worlds, self.bsim, self.G, self.Q = worlds, bsim, G, Q
+        self.posture, self.deflections, self.law, self.contact = P, D, law, contact
+        self.lam, self.prev_action, self.target, self.step, self.noise = lam, prev_action, target, step, noise
+
+    def posture_rate(self) -> np.ndarray:
+        return self.bsim.read_posture_rate(self.G, self.posture)
+
+    def motor_angles(self) -> np.ndarray:
+        return self.bsim.read_motor_angles(self.Q)
+
+    def tool_wrench(self) -> np.ndarray:
+        return self.bsim.read_tool_wrench(self.G)
+
+    def jacobian(self) -> np.ndarray:
+        # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+        P = self.posture
+        _, (J0, J1), _, _ = self.worlds[0].ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
+        return np.stack([J0.T, J1.T], axis=-1)
+
+    def task_term(self, term) -> np.ndarray:
+        """A task's own term, world by world (it reads each world's state)."""
+        name, L = term.name, len(self.worlds)
+        return np.array([e._terms[name].fn() for e in self.worlds], dtype=float).reshape(L, term.size)
 
 
 def _env_class(env_id: str):
@@ -185,10 +213,6 @@ class VSWristVectorEnv(VectorEnv):
         self._obs_size = first.obs_size
         self._obs_names = [t.name for t in first.obs_terms]
         self._obs_slices = dict(first.obs_slices)
-        spans = [(sl.start, sl.stop, name) for name, sl in first.obs_slices.items()]
-        own = {t.name for t in first._task_obs_terms()}  # a task's own term of a base term's name is its own
-        self._array_terms = [x for x in spans if x[2] in ARRAY_TERMS and x[2] not in own]
-        self._world_terms = [x for x in spans if x[2] not in ARRAY_TERMS or x[2] in own]
         # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         # The compiled advance (``BatchSim``): one GIL-free call per chunk of worlds, for tasks whose
@@ -676,14 +700,10 @@ class VSWristVectorEnv(VectorEnv):
         truncated = time_up | cut
         ends = (terminated | truncated).tolist()
 
-        # world by world: the state the single env keeps, the task's reward terms, the task's and the simulator's
-        # observation terms that are not computed over arrays
-        raw = np.empty((L, self._obs_size))
-        world_terms = [(a, b, name) for a, b, name in self._world_terms if name != "tool_wrench"]
+        # world by world: the state the single env keeps, the task's reward terms
         hook_reward = self._hook_reward
         task_raw = []
         peak, sumsq = [], []
-        term_vals: list[list] = [[] for _ in world_terms]
         Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
         for e, p, d, pl, dl, en, c, cl, tg, er, pa, end in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err,
                                                                 PA, ends):
@@ -704,14 +724,7 @@ class VSWristVectorEnv(VectorEnv):
                 task_raw.append(e._task_reward_terms(er))
             e._prev_action = pa
             e._needs_reset = end
-            for vals, (a, b, name) in zip(term_vals, world_terms):
-                vals.append(e._terms[name].fn())
         NZ = np.array(nz_rows) if noise else None
-        for vals, (a, b, name) in zip(term_vals, world_terms):
-            if b - a == 1:
-                raw[:, a] = np.array(vals, dtype=float).reshape(L)
-            else:
-                raw[:, a:b] = np.array(vals, dtype=float)
 
         # reward (RewardsMixin._reward over arrays, the same terms in the same order)
         sc = first.cfg["scales"]
@@ -731,40 +744,9 @@ class VSWristVectorEnv(VectorEnv):
             cols[f"reward_{name}"] = v
             reward += v
 
-        # observation (ObservationsMixin._observation over arrays)
-        for a, b, name in self._array_terms:
-            if name == "posture_rate":
-                raw[:, a:b] = bsim.read_posture_rate(G, P)
-                if NZ is not None:
-                    raw[:, a:b] += NZ[:, 3:6]
-            elif name == "motor_angles":
-                raw[:, a:b] = bsim.read_motor_angles(Q)
-            elif name == "posture":
-                raw[:, a:b] = P if NZ is None else P + NZ[:, 0:3]
-            elif name == "deflections":
-                raw[:, a:b] = D
-            elif name == "spring_torques":
-                raw[:, a:b] = spring_torque(D, law)
-            elif name == "stiffness":
-                raw[:, a:b] = self._coupler_stiffness(first, P, D, law)
-            elif name == "lam":
-                raw[:, a] = lam
-            elif name == "prev_action":
-                raw[:, a:b] = PA
-            elif name == "target":
-                raw[:, a:b] = T
-            elif name == "contact_force":
-                cf = contact_a if NZ is None else contact_a + NZ[:, 12]
-                raw[:, a] = np.where(cf > 0.0, cf, 0.0)  # a touch sensor never reads a pull
-            elif name == "phase":
-                raw[:, a] = steps / first.episode_steps
-        for a, b, name in self._world_terms:
-            if name == "tool_wrench":
-                raw[:, a:b] = bsim.read_tool_wrench(G)
-                if NZ is not None:
-                    raw[:, a:b] += NZ[:, 6:12]
-        np.maximum(raw, first._obs_low, out=raw)
-        np.minimum(raw, first._obs_high, out=raw)
+        # observation (the single env's terms, over arrays)
+        obs = observe(first.obs_terms, BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, NZ),
+                      first._obs_low, first._obs_high)
 
         # info (RewardsMixin._info over arrays)
         t = steps * dt
@@ -789,19 +771,7 @@ class VSWristVectorEnv(VectorEnv):
             for key in extra[0]:
                 cols[key] = np.array([x[key] for x in extra])
         cols["posture_error_vec"] = err
-        return raw.astype(np.float32), reward, terminated, truncated, cols, failures
-
-    @staticmethod
-    def _coupler_stiffness(first, P, D, law: SpringLaw) -> np.ndarray:
-        """The ``stiffness`` term (``ObservationsMixin._obs_stiffness``) of every world: J_a^T diag(sigma_s) J_a
-        at the measured postures, summed leg by leg in the single env's order."""
-        _, Ja, _, _ = first.ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
-        sig = spring_stiffness(D, law).T  # (3, N)
-        J0, J1 = Ja
-        out = np.empty((P.shape[0], 3))
-        for j, x in enumerate((sig * J0 * J0, sig * J0 * J1, sig * J1 * J1)):
-            out[:, j] = x[0] + x[1] + x[2]  # leg by leg, as the single env sums
-        return out
+        return obs, reward, terminated, truncated, cols, failures
 
     # ------------------------------------------------------------------ batching
     def _flat(self, obs) -> np.ndarray:

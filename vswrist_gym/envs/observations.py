@@ -1,4 +1,10 @@
-"""Observations: the named terms (with physical bounds), sensor noise, and the flat or dict observation."""
+"""Observations: the named terms (with physical bounds), sensor noise, and the flat or dict observation.
+
+Each common term is a function over arrays (``ObsTerm.of``): from a step's ``measures`` of N worlds ((N, ...)
+arrays, a batch's) or of one world (its rows without the batch axis, the single env's) to the term's values
+(..., size). The single env and the batch assemble their observations with the same functions (``observe``), so
+the two cannot drift apart.
+"""
 
 from __future__ import annotations
 
@@ -13,16 +19,85 @@ from ..stiffness import spring_stiffness, spring_torque
 
 @dataclass(frozen=True)
 class ObsTerm:
-    """One named observation term: its size, unit, meaning, a function returning a fresh array, and its bounds
-    (the declared space; values are clipped to them, which the bounds are chosen never to need in operation)."""
+    """One named observation term: its size, unit, meaning, how it is computed, and its bounds (the declared
+    space; values are clipped to them, which the bounds are chosen never to need in operation).
+
+    ``of(measures) -> (..., size)``: the term over arrays of worlds (see ``observe``); ``fn() -> (size,)``: one
+    world's value, for a task's own terms, which read its env's state (a batch calls it world by world)."""
 
     name: str
     size: int
     unit: str
     doc: str
-    fn: Callable[[], np.ndarray]
+    fn: Callable[[], np.ndarray] | None
     low: float | np.ndarray = -np.inf
     high: float | np.ndarray = np.inf
+    of: Callable | None = None
+
+
+def _noisy(x, noise, cols: slice):
+    """A measurement with its sensor noise (``noise``: the step's draws (..., 13), or None without noise)."""
+    return x if noise is None else x + noise[..., cols]
+
+
+def _column(x) -> np.ndarray:
+    """Values of one number per world as the term's single column (..., 1)."""
+    return np.asarray(x, dtype=float)[..., None]
+
+
+def touch(force):
+    """A touch sensor's reading: it never reads a pull (negative values, NaN too, read 0)."""
+    return np.where(force > 0.0, force, 0.0)
+
+
+_PAIRS = np.array([0, 0, 1]), np.array([0, 1, 1])  # J_a's columns in the products J0 J0, J0 J1, J1 J1
+
+
+def coupler_stiffness(Ja, sigma) -> np.ndarray:
+    """The paper's J_a^T diag(sigma_s) J_a as (RUD-RUD, RUD-FE, FE-FE) (..., 3), from J_a (..., 3 legs, 2) and
+    the springs' stiffnesses ``sigma`` (..., 3 legs): each leg's sigma J_i J_j, summed leg by leg in order."""
+    x = (sigma[..., :, None] * Ja).take(_PAIRS[0], -1) * Ja.take(_PAIRS[1], -1)  # (..., 3 legs, 3)
+    return x[..., 0, :] + x[..., 1, :] + x[..., 2, :]
+
+
+def observe(terms: list, measures, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The observation of the worlds ``measures`` describes (float32 (..., size)): every term in order, clipped
+    to the bounds (NaN passes through). ``measures`` holds the step's arrays (``posture``, ``deflections``,
+    ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``noise``), the simulator's reads that
+    only some terms need (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``, ``jacobian()``: J_a (..., 3
+    legs, 2)) and ``task_term(term)``, a task's own term over its worlds."""
+    raw = np.concatenate([t.of(measures) if t.of is not None else measures.task_term(t) for t in terms], axis=-1)
+    return np.minimum(np.maximum(raw, low), high).astype(np.float32)
+
+
+class WorldMeasures:
+    """``observe``'s measures of one env (no batch axis): its step's state, and its simulator's reads."""
+
+    __slots__ = ("env", "posture", "deflections", "law", "contact", "lam", "prev_action", "target", "step",
+                 "noise")
+
+    def __init__(self, env):
+        self.env = env
+        self.posture, self.deflections, self.law = env._posture, env._defl, env.params
+        self.contact, self.lam, self.prev_action = env._contact, env.ctrl.lam, env._prev_action
+        self.target, self.step, self.noise = env._target, env._step, env._nz
+
+    def posture_rate(self) -> np.ndarray:
+        return self.env.sim.posture_rate()
+
+    def motor_angles(self) -> np.ndarray:
+        return self.env.sim.motor_angles()
+
+    def tool_wrench(self) -> np.ndarray:
+        return self.env.sim.tool_wrench()
+
+    def jacobian(self) -> np.ndarray:
+        # the posture is finite here (``step`` ends the episode otherwise), so skip kinematics_at's checks
+        ay, az = self.env._posture_list[0], self.env._posture_list[1]
+        return np.array(self.env.ctrl._q1_ja(ay, az)[1])
+
+    def task_term(self, term: ObsTerm) -> np.ndarray:
+        return np.asarray(term.fn(), dtype=float).reshape(term.size)
 
 
 class ObservationsMixin:
@@ -38,32 +113,37 @@ class ObservationsMixin:
         sig_bound = 10.0 * K2 / d0 * math.sqrt(1.0 + (tau_bound / K2) ** 2)
         half_pi, two_pi = 0.5 * math.pi, 2.0 * math.pi
         pl, ph = self.posture_map.lo, self.posture_map.hi
+        steps = self.episode_steps
         terms = [
-            ObsTerm("posture", 3, "rad", "measured RUD, FE, PS (with sensor noise)", self._obs_posture,
-                    np.array([-half_pi, -half_pi, -two_pi]), np.array([half_pi, half_pi, two_pi])),
-            ObsTerm("posture_rate", 3, "rad/s", "d/dt of the posture (with sensor noise)", self._obs_posture_rate,
-                    -100.0, 100.0),
-            ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", lambda: self.sim.motor_angles(),
-                    -two_pi, two_pi),
-            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", lambda: self._defl,
-                    -math.pi, math.pi),
-            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", self._obs_spring_torques,
-                    -tau_bound, tau_bound),
+            ObsTerm("posture", 3, "rad", "measured RUD, FE, PS (with sensor noise)", None,
+                    np.array([-half_pi, -half_pi, -two_pi]), np.array([half_pi, half_pi, two_pi]),
+                    lambda m: _noisy(m.posture, m.noise, slice(0, 3))),
+            ObsTerm("posture_rate", 3, "rad/s", "d/dt of the posture (with sensor noise)", None, -100.0, 100.0,
+                    lambda m: _noisy(m.posture_rate(), m.noise, slice(3, 6))),
+            ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", None, -two_pi, two_pi,
+                    lambda m: m.motor_angles()),
+            ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", None, -math.pi, math.pi,
+                    lambda m: m.deflections),
+            ObsTerm("spring_torques", 3, "N m", "spring torques on the legs", None, -tau_bound, tau_bound,
+                    lambda m: spring_torque(m.deflections, m.law)),
+            # the stiffness the springs give now (loads included), cheap (closed-form J_a, no Hessian); the ~13 %
+            # load term is left out
             ObsTerm("stiffness", 3, "N m/rad", "coupler stiffness of the springs as they are, "
                     "J_a^T diag(sigma_s(delta)) J_a at the measured posture (RUD-RUD, RUD-FE, FE-FE; "
-                    "paper's formula, no load term)",
-                    self._obs_stiffness, -sig_bound, sig_bound),
-            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", lambda: self.ctrl.lam,
-                    -lam_bound, lam_bound),
-            ObsTerm("prev_action", n_act, "-", "previous action", lambda: self._prev_action, -1.0, 1.0),
-            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", lambda: self._target, pl, ph),
-            ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)",
-                    self._obs_wrench, np.array([-1e4] * 3 + [-1e3] * 3), np.array([1e4] * 3 + [1e3] * 3)),
+                    "paper's formula, no load term)", None, -sig_bound, sig_bound,
+                    lambda m: coupler_stiffness(m.jacobian(), spring_stiffness(m.deflections, m.law))),
+            ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", None, -lam_bound, lam_bound,
+                    lambda m: _column(m.lam)),
+            ObsTerm("prev_action", n_act, "-", "previous action", None, -1.0, 1.0, lambda m: m.prev_action),
+            ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", None, pl, ph, lambda m: m.target),
+            ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)", None,
+                    np.array([-1e4] * 3 + [-1e3] * 3), np.array([1e4] * 3 + [1e3] * 3),
+                    lambda m: _noisy(m.tool_wrench(), m.noise, slice(6, 12))),
             ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (Insertion: the "
-                    "hole's walls and chamfers, not the fit plate) (with noise)",
-                    self._obs_contact, 0.0, 1e5),
-            ObsTerm("phase", 1, "-", "elapsed fraction of the episode",
-                    lambda: self._step / self.episode_steps, 0.0, 1.0),
+                    "hole's walls and chamfers, not the fit plate) (with noise)", None, 0.0, 1e5,
+                    lambda m: _column(touch(_noisy(m.contact, m.noise, 12)))),
+            ObsTerm("phase", 1, "-", "elapsed fraction of the episode", None, 0.0, 1.0,
+                    lambda m: _column(m.step / steps)),
         ]
         out = {t.name: t for t in terms}
         for t in self._task_obs_terms():
@@ -98,51 +178,18 @@ class ObservationsMixin:
     def _draw_noise(self) -> None:
         self._nz = None if self._noise is None else self._noise[self._step]
 
-    def _obs_posture(self):
-        return self._posture if self._nz is None else self._posture + self._nz[0:3]
-
-    def _obs_posture_rate(self):
-        r = self.sim.posture_rate()
-        return r if self._nz is None else r + self._nz[3:6]
-
-    def _obs_wrench(self):
-        w = self.sim.tool_wrench()
-        return w if self._nz is None else w + self._nz[6:12]
-
-    def _obs_contact(self):
-        c = self._contact if self._nz is None else self._contact + self._nz[12]
-        return c if c > 0.0 else 0.0  # a touch sensor never reads a pull
-
-    def _obs_spring_torques(self):
-        return spring_torque(self._defl, self.params)
-
-    def _obs_stiffness(self):
-        """The paper's J_a^T Sigma_s J_a from the measured deflections: the stiffness the springs give now
-        (loads included), cheap (closed-form J_a, no Hessian); the ~13 % load term is left out."""
-        # the posture is finite here (``step`` ends the episode otherwise), so skip kinematics_at's checks
-        ay, az = self._posture_list[0], self._posture_list[1]
-        _, Ja = self.ctrl._q1_ja(ay, az)
-        s00 = s01 = s11 = 0.0
-        for (a, b), sig in zip(Ja, spring_stiffness(self._defl, self.params).tolist()):
-            s00 += sig * a * a
-            s01 += sig * a * b
-            s11 += sig * b * b
-        return (s00, s01, s11)
-
     def _raw_observation(self) -> np.ndarray:
-        """All terms written into one new float64 array (so no term is ever a view of simulator memory)."""
-        obs = np.empty(self.obs_size)
-        for a, b, fn in self._obs_plan:
-            obs[a:b] = fn()
-        return obs
+        """This world's observation before clipping and rounding to float32 (float64, every term in order)."""
+        m = WorldMeasures(self)
+        return np.concatenate([t.of(m) if t.of is not None else m.task_term(t) for t in self.obs_terms])
+
+    def _obs_stiffness(self) -> np.ndarray:
+        """This world's ``stiffness`` term now."""
+        return self._terms["stiffness"].of(WorldMeasures(self))
 
     def _observation(self):
         self._draw_noise()
-        obs = self._raw_observation()
-        # np.clip(obs, low, high) without its Python-level dispatch (same values, NaN passes through)
-        np.maximum(obs, self._obs_low, out=obs)
-        np.minimum(obs, self._obs_high, out=obs)
-        obs = obs.astype(np.float32)
+        obs = observe(self.obs_terms, WorldMeasures(self), self._obs_low, self._obs_high)
         if self.cfg["obs_mode"] == "dict":
             return {t.name: obs[self.obs_slices[t.name]].copy() for t in self.obs_terms}
         return obs
