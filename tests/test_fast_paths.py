@@ -8,7 +8,7 @@ import pytest
 
 import vswrist_gym  # noqa: F401  (registers the ids)
 from vswrist_gym.control import AnalyticController, _finite_vector
-from vswrist_gym.envs.rewards import _sum_sq
+from vswrist_gym.envs.rewards import row_sum_sq
 
 
 def _postures(n, seed=0):
@@ -54,11 +54,22 @@ def test_array_fast_path_of_the_reference_check_still_rejects_nan_and_inf():
         AnalyticController().step(np.array([0.0, np.nan, 0.0]), lam=0.1)
 
 
-def test_sum_sq_equals_numpy():
+def test_sum_of_squares_adds_in_order_for_one_world_and_a_batch():
+    """``row_sum_sq`` and the coupler stiffness's leg sum: NumPy's reduction of fewer than 8 terms adds them in
+    order, for one world's row and for a batch's rows alike (what makes the single env equal the batch)."""
+    from vswrist_gym.envs.observations import coupler_stiffness
     rng = np.random.default_rng(3)
-    for n in (1, 3, 4, 6):
-        x = rng.normal(size=n)
-        assert _sum_sq(x) == pytest.approx(float(np.sum(x ** 2)), rel=1e-15)
+    for n in range(1, 8):
+        for _ in range(200):
+            X = rng.normal(size=(5, n)) * 10.0 ** rng.integers(-6, 6, size=(5, n))
+            in_order = [float(sum(v * v for v in x.tolist())) for x in X]  # sum() starts at 0: ((0 + a) + b) ...
+            np.testing.assert_array_equal(row_sum_sq(X), in_order)
+            assert [row_sum_sq(x) for x in X] == in_order
+    Ja, sig = rng.normal(size=(6, 3, 2)), rng.uniform(1, 100, size=(6, 3))
+    by_leg = [[sum(s[k] * J[k, i] * J[k, j] for k in range(3)) for i, j in ((0, 0), (0, 1), (1, 1))]
+              for J, s in zip(Ja, sig)]
+    np.testing.assert_array_equal(coupler_stiffness(Ja, sig), by_leg)
+    assert all(np.array_equal(coupler_stiffness(J, s), b) for J, s, b in zip(Ja, sig, by_leg))
 
 
 def test_observed_stiffness_equals_the_papers_formula_from_kinematics_at():

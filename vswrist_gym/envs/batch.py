@@ -65,7 +65,7 @@ from ..stiffness import SpringLaw, spring_energy
 from .actions import check_action
 from .base import VSWristEnv
 from .observations import observe
-from .rewards import wrap_angle
+from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
 from .shared import PeriodMeanForce
 
 # chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
@@ -79,15 +79,6 @@ MIN_CHUNK_WORLDS = 4
 # (``_tracking_error``), stay the task's
 STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
                 "_draw_noise", "_obs_terms")
-
-
-def _row_sum_sq(x: np.ndarray) -> np.ndarray:
-    """Sum of squares along the last axis, added column by column in order (as ``rewards._sum_sq``)."""
-    sq = x * x
-    out = sq[..., 0]
-    for j in range(1, sq.shape[-1]):
-        out = out + sq[..., j]
-    return out
 
 
 THREADS_ENV = "VSWRIST_THREADS"  # physics threads of every batch made without ``threads`` (e.g. by vswrist train)
@@ -726,46 +717,23 @@ class VSWristVectorEnv(VectorEnv):
             e._needs_reset = end
         NZ = np.array(nz_rows) if noise else None
 
-        # reward (RewardsMixin._reward over arrays, the same terms in the same order)
-        sc = first.cfg["scales"]
-        rterms = {
-            "tracking": -np.sqrt(_row_sum_sq(first._tracking_error(err))) / sc["tracking"],
-            "energy": -energy / sc["energy"],
-            "action_rate": -_row_sum_sq(A - prev) / A.shape[1],
-            "termination": np.where(terminated, -1.0, 0.0),
-        }
+        # reward (the single env's terms, over arrays)
+        rterms = common_reward_terms(first._tracking_error(err), energy, A, prev, terminated, first.cfg["scales"])
         if hook_reward:
             for name in first.task_reward_terms:
                 rterms[name] = np.array([d[name] for d in task_raw])
-        cols: dict[str, np.ndarray] = {}
-        reward = np.zeros(L)
-        for name, w in first.reward_weights.items():
-            v = w * rterms[name]
-            cols[f"reward_{name}"] = v
-            reward += v
+        cols, reward = weigh(rterms, first.reward_weights)
 
         # observation (the single env's terms, over arrays)
         obs = observe(first.obs_terms, BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, NZ),
                       first._obs_low, first._obs_high)
 
-        # info (RewardsMixin._info over arrays)
-        t = steps * dt
+        # info (the single env's metrics, over arrays)
         success = np.zeros(L, dtype=bool)
         for k in np.flatnonzero(time_up & ~cut).tolist():
             success[k] = bool(worlds[k]._success())
-        cols.update(
-            posture_error=np.sqrt([e @ e for e in err]),  # ``_info``'s dot product, world by world (BLAS's
-            # order and rounding, which an in-order sum of squares may miss by an ulp)
-            contact_force=contact_a,
-            peak_contact_force=np.array(peak),
-            rms_contact_force=np.sqrt(np.array(sumsq) / np.maximum(steps, 1)),
-            elastic_energy=energy,
-            lam=lam,
-            loop_closure=closure_a,
-            closure_exceeded=exceeded,
-            time=t,
-            is_success=success,
-        )
+        cols.update(step_metrics(err, contact_a, np.array(peak), np.array(sumsq), steps, energy, lam, closure_a,
+                                 first._closure_warn, steps * dt, success))
         if self._hook_info:
             extra = [e._task_info() for e in worlds]
             for key in extra[0]:

@@ -35,9 +35,12 @@ class ObsTerm:
     of: Callable | None = None
 
 
-def _noisy(x, noise, cols: slice):
-    """A measurement with its sensor noise (``noise``: the step's draws (..., 13), or None without noise)."""
-    return x if noise is None else x + noise[..., cols]
+def _noisy(x, noise, a: int, b: int):
+    """A measurement with its sensor noise, columns a..b-1 of the step's draws ``noise`` (..., 13) (None: no
+    noise)."""
+    if noise is None:
+        return x
+    return x + (noise[..., a] if b == a + 1 else noise[..., a:b])
 
 
 def _column(x) -> np.ndarray:
@@ -57,7 +60,7 @@ def coupler_stiffness(Ja, sigma) -> np.ndarray:
     """The paper's J_a^T diag(sigma_s) J_a as (RUD-RUD, RUD-FE, FE-FE) (..., 3), from J_a (..., 3 legs, 2) and
     the springs' stiffnesses ``sigma`` (..., 3 legs): each leg's sigma J_i J_j, summed leg by leg in order."""
     x = (sigma[..., :, None] * Ja).take(_PAIRS[0], -1) * Ja.take(_PAIRS[1], -1)  # (..., 3 legs, 3)
-    return x[..., 0, :] + x[..., 1, :] + x[..., 2, :]
+    return np.add.reduce(x, axis=-2)
 
 
 def observe(terms: list, measures, low: np.ndarray, high: np.ndarray) -> np.ndarray:
@@ -117,9 +120,9 @@ class ObservationsMixin:
         terms = [
             ObsTerm("posture", 3, "rad", "measured RUD, FE, PS (with sensor noise)", None,
                     np.array([-half_pi, -half_pi, -two_pi]), np.array([half_pi, half_pi, two_pi]),
-                    lambda m: _noisy(m.posture, m.noise, slice(0, 3))),
+                    lambda m: m.posture if m.noise is None else m.posture + m.noise[..., 0:3]),
             ObsTerm("posture_rate", 3, "rad/s", "d/dt of the posture (with sensor noise)", None, -100.0, 100.0,
-                    lambda m: _noisy(m.posture_rate(), m.noise, slice(3, 6))),
+                    lambda m: _noisy(m.posture_rate(), m.noise, 3, 6)),
             ObsTerm("motor_angles", 4, "rad", "three PM motors and the PS motor", None, -two_pi, two_pi,
                     lambda m: m.motor_angles()),
             ObsTerm("deflections", 3, "rad", "spring deflections delta = q1 - theta", None, -math.pi, math.pi,
@@ -138,10 +141,10 @@ class ObservationsMixin:
             ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", None, pl, ph, lambda m: m.target),
             ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)", None,
                     np.array([-1e4] * 3 + [-1e3] * 3), np.array([1e4] * 3 + [1e3] * 3),
-                    lambda m: _noisy(m.tool_wrench(), m.noise, slice(6, 12))),
+                    lambda m: _noisy(m.tool_wrench(), m.noise, 6, 12)),
             ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (Insertion: the "
                     "hole's walls and chamfers, not the fit plate) (with noise)", None, 0.0, 1e5,
-                    lambda m: _column(touch(_noisy(m.contact, m.noise, 12)))),
+                    lambda m: _column(touch(_noisy(m.contact, m.noise, 12, 13)))),
             ObsTerm("phase", 1, "-", "elapsed fraction of the episode", None, 0.0, 1.0,
                     lambda m: _column(m.step / steps)),
         ]

@@ -1,8 +1,11 @@
-"""Rewards and ``info``: the common reward terms, the weighted sum, and the metrics every task reports."""
+"""Rewards and ``info``: the common reward terms, the weighted sum, and the metrics every task reports.
+
+The terms, their weighted sum and the metrics are functions over arrays: of N worlds ((N, ...) arrays, a
+batch's) or of one world (its rows without the batch axis, the single env's), so that the single env and the
+batch compute them with the same code.
+"""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -13,12 +16,10 @@ FORCE_CAP = 10.0  # force penalties saturate at FORCE_CAP x scales.force: one vi
                   # contacts driven by stiff servos reach kN for a step) must not swamp a whole episode
 
 
-def _sum_sq(x: np.ndarray) -> float:
-    """float(np.sum(x ** 2)) for the short vectors of the reward (numpy sums fewer than 8 terms in order)."""
-    s = 0.0
-    for v in (x * x).tolist():
-        s += v
-    return s
+def row_sum_sq(x: np.ndarray):
+    """Sum of squares along the last axis. NumPy adds fewer than 8 terms in order, one world's row as a batch's
+    (``tests/test_fast_paths.py`` holds it), so that the two give the same bits."""
+    return np.add.reduce(x * x, axis=-1)
 
 
 def wrap_angle(x):
@@ -26,42 +27,77 @@ def wrap_angle(x):
     return (np.asarray(x) + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def common_reward_terms(tracked, energy, action, prev_action, terminated, scales: dict) -> dict:
+    """The unweighted common terms: ``tracked`` the posture error the task counts (..., k) (rad), ``energy``
+    the springs' elastic energy (...) (J), ``action``/``prev_action`` (..., action dim), ``terminated`` (...)
+    whether the physics diverged at this step."""
+    return {
+        "tracking": -np.sqrt(row_sum_sq(tracked)) / scales["tracking"],
+        "energy": -energy / scales["energy"],
+        "action_rate": -row_sum_sq(action - prev_action) / action.shape[-1],
+        "termination": np.where(terminated, -1.0, 0.0),
+    }
+
+
+def weigh(raw: dict, weights: dict) -> tuple[dict, np.ndarray | float]:
+    """The weighted terms ``reward_<name>`` and their sum, added in the weights' order (as ``info`` reports
+    them, so that they sum exactly to the reward)."""
+    weighted = {f"reward_{k}": w * raw[k] for k, w in weights.items()}
+    reward = 0.0  # (0.0 + x is x, -0.0 included: the sum of a batch's zeros and x is the same)
+    for v in weighted.values():
+        reward = reward + v
+    return weighted, reward
+
+
+def _squared_norms(err: np.ndarray):
+    """err . err of each world: one dot product per world (BLAS's order and rounding, which an in-order sum of
+    squares may miss by an ulp)."""
+    return err @ err if err.ndim == 1 else np.array([e @ e for e in err])
+
+
+def step_metrics(err, contact, peak_contact, sum_contact_sq, step, energy, lam, closure, closure_warn, time,
+                 success) -> dict:
+    """The metrics of ``info`` (see ``envs.base``) from the step's arrays: posture error (..., 3) (rad), the
+    contact force now, its peak and sum of squares over the episode (N, N, N^2), the step count, elastic energy
+    (J), lam (N m), the period's loop-closure peak, its warning level, the time (s) and the success flag."""
+    return {
+        "posture_error": np.sqrt(_squared_norms(err)),
+        "contact_force": contact,
+        "peak_contact_force": peak_contact,
+        "rms_contact_force": np.sqrt(sum_contact_sq / np.maximum(step, 1)),
+        "elastic_energy": energy,
+        "lam": lam,
+        "loop_closure": closure,
+        "closure_exceeded": closure > closure_warn,
+        "time": time,
+        "is_success": success,
+    }
+
+
+_FLAGS = ("closure_exceeded", "is_success")  # the metrics that are bools
+
+
 class RewardsMixin:
-    """The reward (unweighted terms, weights from config, their sum) and the ``info`` metrics of a step."""
+    """The reward (unweighted terms, weights from config, their sum) and the ``info`` metrics of one world's
+    step, through the functions above."""
 
     def _reward(self, err: np.ndarray, a: np.ndarray, failure: str | None) -> tuple[dict, float]:
-        """The weighted terms ``reward_<name>`` and their sum (added in order, as the info reports them)."""
-        sc = self.cfg["scales"]
-        raw = {
-            "tracking": -math.sqrt(_sum_sq(self._tracking_error(err))) / sc["tracking"],
-            "energy": -self._energy / sc["energy"],
-            "action_rate": -_sum_sq(a - self._prev_action) / a.size,
-            "termination": -1.0 if failure is not None else 0.0,
-        }
+        """The weighted terms ``reward_<name>`` and their sum."""
+        raw = common_reward_terms(self._tracking_error(err), self._energy, a, self._prev_action,
+                                  failure is not None, self.cfg["scales"])
         raw.update(self._task_reward_terms(err))
-        weighted = {f"reward_{k}": w * raw[k] for k, w in self.reward_weights.items()}
-        reward = 0.0
-        for v in weighted.values():
-            reward += v
-        return weighted, reward
+        weighted, reward = weigh(raw, self.reward_weights)
+        return {k: float(v) for k, v in weighted.items()}, float(reward)
 
     def _info(self, weighted: dict, final: bool, err: np.ndarray | None = None) -> dict:
         if err is None:
             err = wrap_angle(self._posture - self._target)
-        n = max(self._step, 1)
         info = dict(weighted)
-        info.update(
-            posture_error=math.sqrt(float(err @ err)),
-            contact_force=float(self._contact),
-            peak_contact_force=float(self._peak_contact),
-            rms_contact_force=float(math.sqrt(self._sum_contact_sq / n)),
-            elastic_energy=self._energy,
-            lam=float(self.ctrl.lam),
-            loop_closure=self._closure,
-            closure_exceeded=self._closure > self._closure_warn,
-            time=self._t,
-            is_success=bool(self._success()) if final else False,
-        )
+        metrics = step_metrics(err, self._contact, self._peak_contact, self._sum_contact_sq, self._step,
+                               self._energy, self.ctrl.lam, self._closure, self._closure_warn, self._t,
+                               bool(self._success()) if final else False)
+        for k, v in metrics.items():  # one world's info holds Python numbers
+            info[k] = bool(v) if k in _FLAGS else float(v)
         extra = self._task_info()
         if extra:
             info.update(extra)
