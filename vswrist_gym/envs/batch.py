@@ -6,40 +6,19 @@ works per world). One ``step`` of the batch:
 1. every action row is checked first (shape ``(N, action_dim)``, real and finite; else ``ValueError`` naming the
    env index), so a bad batch changes nothing;
 2. worlds that ended on the previous step are reset (``autoreset_mode`` NEXT_STEP, the default) or, with
-   SAME_STEP, right after the step that ended them;
-3. before the physics: action clipping and maps, and the analytic controller (modes ``posture_stiffness`` and
-   ``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics
-   and the ``motor`` mode world by world; then the task's loads, ``_before_physics_worlds`` (over arrays of
-   worlds where the task writes them so: Drill, LoadHold; else each world's ``_before_physics``);
-4. the physics of all worlds: one control period each, through the batch simulator (``batch_sim.BatchSim``, the compiled
-   advance: per world, what ``_advance`` does through ``WristSim``, in one GIL-free C++ call per chunk of worlds). On
-   ``threads`` threads, up to ``CHUNKS_PER_THREAD`` chunks per thread (of at least ``MIN_CHUNK_WORLDS`` worlds) are
-   stepped by the library's ``threads - 1`` threads and by the calling thread: step 3 of the other chunks runs beside
-   the first chunks' physics, and step 5 of most chunks beside the last ones' (``_native_step``), so the Python of some
-   worlds runs beside the physics of others. The compiled plugins (``model.native``: springs and motors, the
-   loop-closure monitor, and Polish's and Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable
-   state (theirs lives in each MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so
-   worlds advance in parallel; no task steps substep by substep from Python. The worlds that reset at this step begin
-   their episodes together (``VSWristEnv._reset_begin_worlds``: the kinematics of all their initial postures in one
-   pass) and settle (the reset's physics) on a thread pool meanwhile. Actuation latency (its first substeps on the
-   previous references) runs inside the compiled call too. Without a C++ compiler each world runs ``_advance`` (the
-   bindings' ``mj_step``, which releases the GIL) on a pool of ``threads`` threads; with the Python fallback callbacks
-   (no C compiler) each substep re-enters Python, so threads would only contend for the GIL: the batch then steps
-   serially;
-5. after the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool wrench: what
-   ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics threads, or in
-   Python without it, and computed over arrays by ``BatchSim``'s reads), its reference (a row of the table its reset
-   computed: ``_reference`` is written over arrays of times), its task hooks (``_contact_force``,
-   ``_task_reward_terms``, ``_task_info``, task observation terms) and its sensor noise (from its own generator, in the
-   single env's order) run world by world; the measures' math, divergence checks, the common reward terms, the
-   observation and the info (Gymnasium's vector info: arrays and ``_key`` masks) are computed over arrays, each with the
-   single env's operations in the single env's order, so world i of a batch is the single env with seed s + i (to the
-   bit on one machine: ``tests/test_batch.py`` checks 1e-9).
+   SAME_STEP, right after the step that ended them; the worlds that reset at a step begin their episodes together
+   (``VSWristEnv._reset_begin_worlds``: the kinematics of all their initial postures in one pass) and settle (the
+   reset's physics) on a thread pool meanwhile;
+3. before the physics: the array step's ``_begin`` (``batch_step``: actions, the controller over arrays, the
+   task's loads);
+4. the physics of all worlds, one control period each, on threads (``batch_physics``);
+5. after the physics: the array step's ``_finish`` (``batch_step``: the simulators' reads, the task hooks world by
+   world, and the observation, the reward and the info over arrays with the single env's own functions), so that
+   world i of a batch is the single env with seed s + i (``tests/test_batch.py``); the infos as Gymnasium's vector
+   info (``vector_info``).
 
-Steps 3 and 5 are ``VSWristEnv._begin_step``/``_finish_step`` written over arrays (the "array step"), for every
-batch, one world or many; a task may change the step through its hooks, not by overriding one of the
-``STEP_METHODS`` the array step implements (such a task is refused when its batch is made). The single env
-keeps its scalar step (``gym.make``): the same numbers, and faster for one world.
+Modules: this one (the ``VectorEnv``: construction, threads, resets, the step's order, rendering, pickling),
+``batch_step`` (the step's phases over arrays), ``batch_physics`` (the physics on threads) and ``vector_info``.
 
 Seeding follows Gymnasium: ``reset(seed=s)`` seeds world i with ``s + i`` (a list gives one seed per world), so
 world i replays ``gym.make(id).reset(seed=s + i)`` step for step (``tests/test_batch.py``).
@@ -47,39 +26,23 @@ world i replays ``gym.make(id).reset(seed=s + i)`` step for step (``tests/test_b
 
 from __future__ import annotations
 
-import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Mapping, Sequence
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..batch_sim import DIVERGED, OK, BatchSim
-from ..sim import DIVERGED_MESSAGE
-from ..stiffness import SpringLaw, spring_energy
+from ..batch_sim import BatchSim
 from .actions import check_action
 from .base import VSWristEnv
-from .observations import observe
-from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
+from .batch_physics import PhysicsMixin
+from .batch_step import STEP_METHODS, ArrayStepMixin
 from .shared import PeriodMeanForce
-
-# chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
-# MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and shorten the last chunk, whose
-# ``_finish`` no physics overlaps; fewer make the first chunk, whose ``_begin`` no physics overlaps, longer to
-# compute beside
-CHUNKS_PER_THREAD = 4
-MIN_CHUNK_WORLDS = 4
-# the single env's step methods that the array step computes over arrays (a batch of a task overriding one is
-# refused: the batch would not run the override); the hooks it calls per world, or over arrays
-# (``_tracking_error``), stay the task's
-STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
-                "_draw_noise", "_obs_terms")
-
+from .vector_info import VectorInfoMixin
 
 THREADS_ENV = "VSWRIST_THREADS"  # physics threads of every batch made without ``threads`` (e.g. by vswrist train)
 
@@ -101,39 +64,6 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-class BatchMeasures:
-    """``observations.observe``'s measures of a batch's live worlds after a step: (N, ...) arrays, and the reads
-    of their simulators over arrays from the gathered rows ``G`` (``BatchSim``'s reads)."""
-
-    __slots__ = ("worlds", "bsim", "G", "posture", "deflections", "Q", "law", "contact", "lam", "prev_action",
-                 "target", "step", "noise")
-
-    def __init__(self, worlds, bsim, G, P, D, Q, law, contact, lam, prev_action, target, step, noise):
-        self.worlds, self.bsim, self.G, self.Q = worlds, bsim, G, Q
-        self.posture, self.deflections, self.law, self.contact = P, D, law, contact
-        self.lam, self.prev_action, self.target, self.step, self.noise = lam, prev_action, target, step, noise
-
-    def posture_rate(self) -> np.ndarray:
-        return self.bsim.read_posture_rate(self.G, self.posture)
-
-    def motor_angles(self) -> np.ndarray:
-        return self.bsim.read_motor_angles(self.Q)
-
-    def tool_wrench(self) -> np.ndarray:
-        return self.bsim.read_tool_wrench(self.G)
-
-    def jacobian(self) -> np.ndarray:
-        # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
-        P = self.posture
-        _, (J0, J1), _, _ = self.worlds[0].ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
-        return np.stack([J0.T, J1.T], axis=-1)
-
-    def task_term(self, term) -> np.ndarray:
-        """A task's own term, world by world (it reads each world's state)."""
-        name, L = term.name, len(self.worlds)
-        return np.array([e._terms[name].fn() for e in self.worlds], dtype=float).reshape(L, term.size)
-
-
 def _env_class(env_id: str):
     from gymnasium.envs.registration import load_env_creator
 
@@ -146,7 +76,7 @@ def _env_class(env_id: str):
     return load_env_creator(entry) if isinstance(entry, str) else entry
 
 
-class VSWristVectorEnv(VectorEnv):
+class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv):
     """``num_envs`` worlds of one task (``env_id``), stepped together; see the module docstring.
 
     ``config``/``overrides``: as for ``gym.make`` (the same for every world). ``threads``: physics threads
@@ -244,22 +174,6 @@ class VSWristVectorEnv(VectorEnv):
         if bsim is not None:
             bsim.close()
 
-    def _advance_chunk(self, lo: int, hi: int, live: np.ndarray) -> None:
-        envs = self.envs
-        for i in range(lo, hi):
-            if live[i]:
-                envs[i]._advance()
-
-    def _physics(self, live: np.ndarray) -> None:
-        """One control period of every live world: serially, or one contiguous chunk of worlds per thread."""
-        if self._pool is None:
-            self._advance_chunk(0, self.num_envs, live)
-            return
-        futures = [self._pool.submit(self._advance_chunk, a, b, live) for a, b in self._chunks[1:]]
-        self._advance_chunk(*self._chunks[0], live)  # this thread takes the first chunk instead of waiting
-        for f in futures:
-            f.result()  # re-raises a world's exception here
-
     # ------------------------------------------------------------------ resets, settled on the threads
     def _start_resets(self, worlds: list, started: dict, seeds: list | None = None) -> None:
         """Begin the resets of ``worlds`` (with ``seeds[i]``, or none: their generators go on) and settle
@@ -288,158 +202,6 @@ class VSWristVectorEnv(VectorEnv):
         out = self.envs[i]._reset_finish()
         self._attach([i])
         return out
-
-    # ------------------------------------------------------------------ the compiled advance
-    def _attach(self, worlds) -> None:
-        """The batch simulator's handles of ``worlds`` (after a reset: randomisation may rebuild a simulator)."""
-        bsim, meter_task = self.batch_sim, self._meter_task
-        for i in worlds:
-            e = self.envs[i]
-            bsim.attach(i, e.sim, e.ctrl_dt, getattr(e, "_meter", None) if meter_task else None)
-
-    def _native_ready(self, idx: list) -> bool:
-        """Whether the compiled advance steps the worlds ``idx`` this period (handles refreshed if stale)."""
-        bsim, envs = self.batch_sim, self.envs
-        if bsim.lib is None:
-            return False
-        stale = [i for i in idx if not bsim.attached(i, envs[i].sim)]
-        if stale:
-            self._attach(stale)
-        if not bsim.steps(idx):
-            return False
-        # actuation latency (drawn at each reset): the first period after a reset has no previous references
-        lat = [e._latency for e in (envs[i] for i in idx)]
-        if any(lat):
-            bsim.set_latency(idx, [int(round(x / envs[i].sim.timestep)) if x > 0.0 and envs[i]._theta_prev is not None
-                                   else 0 for i, x in zip(idx, lat)])
-        else:
-            bsim.set_latency(idx, 0)
-        return True
-
-    def _after_native(self, worlds: list, idx: list, status: np.ndarray) -> None:
-        """What ``_advance`` leaves on each world and its simulator, from the compiled call's status."""
-        meter = self._meter_task
-        for e, i, st in zip(worlds, idx, self.batch_sim.settle([e.sim for e in worlds], status)):
-            if meter:
-                e._period_ran = True
-            if st == OK:
-                e._failure = None
-            elif st == DIVERGED:
-                e._failure = DIVERGED_MESSAGE
-            else:
-                raise mujoco.FatalError(f"env {i}: MuJoCo raised an error inside this world's physics step")
-
-    def _native_step(self, worlds: list, idx: list, acts: np.ndarray, started: dict | None = None, meanwhile=None):
-        """The array step's ``_begin`` and the physics of the live worlds through the compiled advance
-        (``acts``: their checked actions). On one
-        thread: ``_begin``, one call, ``_finish``. On ``threads`` threads: up to ``CHUNKS_PER_THREAD`` x threads
-        chunks of worlds, stepped by the library's ``threads - 1`` threads and by this one:
-
-        * ``_begin`` of the first chunk of each pool thread, which starts it; then, while those chunks' physics
-          runs, ``_begin`` of the others, which are then released to the pool (``BatchSim.pool``):
-          the Python before the physics is one chunk's, not the batch's. Should that second ``_begin`` raise (a
-          task hook's bug: the actions were checked before), the first chunks have stepped and the others have
-          not, so the batch then needs a ``reset()`` (``ResetNeeded`` otherwise) rather than going on from a
-          half-stepped state;
-        * this thread steps chunks while more than one per pool thread is left to claim, and only then
-          computes the rewards and observations (``_finish``) of the chunks done, in one call while the pool
-          steps the last ones, then of those: each ``_finish`` call has a fixed cost (its array calls) that many
-          small calls would pay many times over.
-
-        Each world's numbers depend on that world only, so the chunks' results are joined in world order.
-        Returns ``_finish``'s results.
-        ``started``: with SAME_STEP autoresets, the resets begun (``_start_resets``) of the worlds a finished
-        chunk ended, whose settling then runs beside the physics still to come. ``meanwhile()``: Python to run
-        while the physics starts (the worlds that reset at this step)."""
-        L = len(idx)
-        widx = np.asarray(idx, dtype=np.int32)
-        status = np.zeros(L, dtype=np.int32)
-        seconds = None if self.physics_seconds is None else np.zeros(L)
-        bsim = self.batch_sim
-        G = np.empty((L, bsim.width))  # the gathered reads (``batch_sim.gather_plan``)
-        parts: list = []  # (positions in idx, _finish's results for those worlds)
-        A = None  # the clipped actions, once ``_begin`` has run for every world
-
-        def finish(pos: list) -> None:
-            ws = [worlds[p] for p in pos]
-            self._after_native(ws, [idx[p] for p in pos], status[pos])
-            part = self._finish(ws, A[pos], G[pos])
-            parts.append((pos, part))
-            if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
-                self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
-
-        def begin(lo: int, hi: int) -> tuple[np.ndarray | None, np.ndarray]:
-            """``_begin`` of live worlds lo..hi-1: their clipped actions and motor references (hi - lo, 4)."""
-            ws, ids = worlds[lo:hi], idx[lo:hi]
-            a, theta = self._begin(ws, acts[lo:hi])
-            return a, self._motor_matrix(ws, ids, theta)
-
-        k = min(CHUNKS_PER_THREAD * self.threads, L // MIN_CHUNK_WORLDS)
-        if self.threads == 1 or k < 2:
-            A, TH = begin(0, L)
-            if meanwhile is not None:
-                meanwhile()
-            bsim.advance(widx, TH, status, seconds, G)
-            finish(list(range(L)))
-        else:
-            bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
-            head = int(bounds[self.threads - 1])  # one chunk for each pool thread
-            A1, TH1 = begin(0, head)
-            TH = np.empty((L, 4))
-            TH[:head] = TH1
-            pool = bsim.pool(self.threads - 1)
-            bsim.submit(pool, widx, TH, status, seconds, bounds, self.threads - 1, G)
-            todo = np.ones(k, dtype=bool)
-            try:
-                if meanwhile is not None:
-                    meanwhile()
-                try:
-                    A2, TH[head:] = begin(head, L)
-                except BaseException:
-                    self._started = False  # the first chunks stepped, the others did not: reset() first
-                    raise
-                A = np.concatenate([A1, A2])
-                pool.release()
-                # the last unclaimed chunk of each pool thread stays for it, so that the first _finish (most of
-                # the worlds) runs beside physics
-                keep = self.threads - 1
-                while todo.any():
-                    if pool.run_one(keep) >= 0:  # step chunks while more than `keep` are left to claim
-                        continue
-                    ready = pool.ready() & todo
-                    if ready.any():
-                        chunks = np.flatnonzero(ready).tolist()
-                        todo[chunks] = False
-                        finish([p for c in chunks for p in range(int(bounds[c]), int(bounds[c + 1]))])
-                    elif pool.run_one() < 0:  # nothing done yet: step a kept chunk, else wait for one
-                        pool.wait(int(np.flatnonzero(todo)[0]))
-            finally:
-                pool.wait()  # no thread touches a world after we return
-        if seconds is not None:
-            self.physics_seconds += float(seconds.sum())
-        if len(parts) == 1:
-            return parts[0][1]
-        order = np.concatenate([np.asarray(pos) for pos, _ in parts])
-        inv = np.empty(L, dtype=np.intp)
-        inv[order] = np.arange(L)
-
-        def join(j: int) -> np.ndarray:
-            return np.concatenate([p[j] for _, p in parts])[inv]
-
-        failures = {pos[j]: msg for pos, p in parts for j, msg in p[5].items()}
-        return (join(0), join(1), join(2), join(3),
-                {key: np.concatenate([p[4][key] for _, p in parts])[inv] for key in parts[0][1][4]}, failures)
-
-    @staticmethod
-    def _motor_matrix(worlds: list, idx: list, theta: np.ndarray | None) -> np.ndarray:
-        """The live worlds' motor references (L, 4), float64 C-contiguous, checked finite as
-        ``WristSim.set_motor_references`` checks them."""
-        TH = np.ascontiguousarray(theta if theta is not None else [e._theta for e in worlds], dtype=np.float64)
-        if not np.isfinite(TH).all():
-            k = int(np.flatnonzero(~np.isfinite(TH).all(axis=1))[0])
-            raise ValueError(f"env {idx[k]}: motor references must be 4 finite angles in rad (A, B, C, PS), got "
-                             f"{TH[k]!r}")
-        return TH
 
     # ------------------------------------------------------------------ API
     def _seeds(self, seed) -> list:
@@ -579,260 +341,6 @@ class VSWristVectorEnv(VectorEnv):
             self._autoreset = term | trunc
         self._last_obs = obs
         return obs, rew, term, trunc, ((idx, cols), rows, extras)
-
-    # ------------------------------------------------------------------ the step's phases over arrays
-    def _begin(self, worlds: list, acts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``, over
-        arrays where the mode runs the controller with a commanded lam); returns the clipped actions and the
-        motor references (L, 4) where the controller computed them over arrays (else None)."""
-        A = np.maximum(acts, -1.0)
-        np.minimum(A, 1.0, out=A)
-        first = worlds[0]
-        mode = self._mode
-        if mode in ("posture_stiffness", "residual"):
-            if mode == "posture_stiffness":
-                ref, s = first.posture_map.to_posture(A[:, :3]), A[:, 3]
-            else:
-                r = first.cfg["residual"]
-                target = np.array([e._target for e in worlds])
-                ref = first.posture_map.clip(target + r["posture_scale"] * A[:, :3])
-                s = r["stiffness_nominal"] + r["stiffness_scale"] * A[:, 3]
-            # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
-            theta, lam, u = first.ctrl.step_batch(ref, first.stiffness_map.to_lam_batch(s))
-            for e, a, th, (ay, az, ps), lam_k in zip(worlds, A, theta, u.tolist(), lam.tolist()):
-                c = e.ctrl
-                c._u, c._ps, c.lam = (ay, az), ps, lam_k
-                e._a, e._theta = a, th
-        else:  # motor (no controller) and posture_compliance (LM dynamics per world)
-            theta = None
-            for e, a in zip(worlds, A):
-                e._a, e._theta = a, e._motor_refs(a)
-        if self._hook_before:
-            type(first)._before_physics_worlds(worlds, np.array([e._t for e in worlds]))
-        return A, theta
-
-    def _finish(self, worlds: list, A: np.ndarray, G: np.ndarray | None = None):
-        """``VSWristEnv._finish_step`` of the live worlds: the simulators' reads come gathered in ``G`` (rows of
-        ``batch_sim.gather_plan``, filled by the compiled advance; None: gathered here), the task hooks run world by
-        world (in the single env's order, so each draws its noise from its own generator as it would alone);
-        the measures' math, rewards, observation and info run over arrays."""
-        first = worlds[0]
-        L = len(worlds)
-        dt = first.ctrl_dt
-        light = first._light_sync
-        bsim = self.batch_sim
-        noise = first._noise_std is not None
-        failed = [e._failure for e in worlds]
-        hook_contact = self._hook_contact
-        # world by world, first (the single env's step up to ``_measure``'s contact hook): the step count and
-        # time, the task's contact force; and what the arrays below need of each world's state
-        contact, K, d0, T, lam, prev, nz_rows, steps = [], [], [], [], [], [], [], []
-        for e in worlds:
-            e._theta_prev = e._theta
-            k = e._step + 1
-            e._step = k
-            e._t = k * dt
-            steps.append(k)
-            sp = e.params.spring
-            K.append(sp.K)
-            d0.append(sp.delta0)
-            T.append(e._references[k])
-            lam.append(e.ctrl.lam)
-            prev.append(e._prev_action)
-            if noise:
-                nz = e._nz = e._noise[k]  # ``_draw_noise`` (the task's own observation terms may read it)
-                nz_rows.append(nz)
-            contact.append(e._contact_force() if hook_contact else 0.0)
-        sims = [e.sim for e in worlds]
-        redo = []
-        for k in range(L):
-            if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure does
-                if light:
-                    sims[k].sync_kinematics()
-                sims[k].posture()
-                redo.append(k)
-        if G is None:
-            G = bsim.gather(sims)
-        elif redo:
-            G[redo] = bsim.gather([sims[k] for k in redo])
-        P, D, Q = bsim.read_posture(G)
-        bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
-        failures: dict[int, str] = {k: failed[k] for k in range(L) if failed[k] is not None}
-        for k in np.flatnonzero(bad).tolist():
-            if k not in failures:
-                failures[k] = f"non-finite state at t = {worlds[k]._t:.3f} s"
-        closure = bsim.read_closure(G, sims)
-        for k in failures:
-            # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
-            e = worlds[k]
-            closure[k] = math.inf
-            e.sim.reset()
-            e.sim.apply_wrench(np.zeros(3), np.zeros(3))
-            e._measure()
-            P[k], D[k], contact[k] = e._posture, e._defl, e._contact
-            G[k] = bsim.gather([e.sim])[0]  # what the observation reads: the clean state
-            Q[k] = bsim.qpos(G[k:k + 1])[0]
-        law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
-        e3 = spring_energy(D, law)
-        energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
-        T = np.array(T)
-        err = wrap_angle(P - T)
-        contact_a = np.array(contact)
-        closure_a = np.array(closure)
-        steps = np.array(steps)
-        lam = np.array(lam)
-        prev = np.array(prev)
-        terminated = np.zeros(L, dtype=bool)
-        terminated[list(failures)] = True
-        PA = A.astype(np.float32)
-        time_up = ~terminated & (steps >= first.episode_steps)
-        exceeded = closure_a > first._closure_warn
-        cut = ~terminated & exceeded if first._closure_truncate else np.zeros(L, dtype=bool)
-        truncated = time_up | cut
-        ends = (terminated | truncated).tolist()
-
-        # world by world: the state the single env keeps, the task's reward terms
-        hook_reward = self._hook_reward
-        task_raw = []
-        peak, sumsq = [], []
-        Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
-        for e, p, d, pl, dl, en, c, cl, tg, er, pa, end in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err,
-                                                                PA, ends):
-            e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
-            e._energy, e._contact, e._closure, e._target = en, c, cl, tg
-            pk = e._peak_contact
-            pk = c if c > pk else pk  # = max(pk, c)
-            e._peak_contact = pk
-            peak.append(pk)
-            sq = e._sum_contact_sq + c * c
-            e._sum_contact_sq = sq
-            sumsq.append(sq)
-            h = e._history
-            h["error"].append(er)
-            h["energy"].append(en)
-            h["contact"].append(c)
-            if hook_reward:
-                task_raw.append(e._task_reward_terms(er))
-            e._prev_action = pa
-            e._needs_reset = end
-        NZ = np.array(nz_rows) if noise else None
-
-        # reward (the single env's terms, over arrays)
-        rterms = common_reward_terms(first._tracking_error(err), energy, A, prev, terminated, first.cfg["scales"])
-        if hook_reward:
-            for name in first.task_reward_terms:
-                rterms[name] = np.array([d[name] for d in task_raw])
-        cols, reward = weigh(rterms, first.reward_weights)
-
-        # observation (the single env's terms, over arrays)
-        obs = observe(first.obs_terms, BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, NZ),
-                      first._obs_low, first._obs_high)
-
-        # info (the single env's metrics, over arrays)
-        success = np.zeros(L, dtype=bool)
-        for k in np.flatnonzero(time_up & ~cut).tolist():
-            success[k] = bool(worlds[k]._success())
-        cols.update(step_metrics(err, contact_a, np.array(peak), np.array(sumsq), steps, energy, lam, closure_a,
-                                 first._closure_warn, steps * dt, success))
-        if self._hook_info:
-            extra = [e._task_info() for e in worlds]
-            for key in extra[0]:
-                cols[key] = np.array([x[key] for x in extra])
-        cols["posture_error_vec"] = err
-        return obs, reward, terminated, truncated, cols, failures
-
-    # ------------------------------------------------------------------ batching
-    def _flat(self, obs) -> np.ndarray:
-        """A world's observation as the flat float32 row (a dict observation concatenated in term order)."""
-        if self._dict_obs:
-            return np.concatenate([obs[name] for name in self._obs_names])
-        return obs
-
-    def _unflat(self, flat: np.ndarray):
-        """Flat rows (N, obs_size) or one row as the batch's (or a world's) observation."""
-        if self._dict_obs:
-            return {name: flat[..., sl].copy() for name, sl in self._obs_slices.items()}
-        return flat
-
-    def _vector_info(self, cols_, rows: dict, extras: dict) -> dict:
-        """Gymnasium's vector info: each key an array over worlds, with a bool mask ``_key`` of the worlds that
-        have it."""
-        idx, cols = cols_
-        n = self.num_envs
-        if not cols and not extras and len(rows) == n:  # world by world: stack the worlds' dicts
-            return self._merge_infos([rows[i] for i in range(n)])
-        out: dict[str, Any] = {}
-        if cols:
-            mask = np.zeros(n, dtype=bool)
-            mask[idx] = True
-            if rows:
-                mask[list(rows)] = False
-            for key, v in (cols.items() if mask.any() else ()):
-                full = np.zeros((n,) + v.shape[1:], dtype=v.dtype)
-                full[idx] = v
-                if rows:
-                    full[list(rows)] = 0  # as Gymnasium's vector info leaves the worlds without the key
-                out[key] = full
-                out[f"_{key}"] = mask.copy()
-        for i in sorted(rows):
-            out = self._add_info(out, rows[i], i)
-        for i in sorted(extras):
-            out = self._add_info(out, extras[i], i)
-        return out
-
-    def _merge_infos(self, infos: list[dict], mask: np.ndarray | None = None) -> dict:
-        """Gymnasium's vector info: each key an array over worlds, with a bool mask ``_key`` of the worlds that
-        have it. Keys every world has (the common case) are stacked at once; the rest go through ``_add_info``."""
-        out: dict[str, Any] = {}
-        n = self.num_envs
-        present = [i for i in range(n) if mask is None or mask[i]]
-        if not present:
-            return out
-        keys0 = infos[present[0]].keys()
-        uniform = all(infos[i].keys() == keys0 for i in present)
-        stacked: set = set()
-        if len(present) == n:
-            common = set(keys0)
-            if not uniform:
-                for i in present[1:]:
-                    common &= infos[i].keys()
-            for k in keys0:
-                if k not in common or k in ("final_obs", "final_info"):
-                    continue
-                vals = [d[k] for d in infos]
-                v0 = vals[0]
-                if isinstance(v0, (bool, np.bool_)):
-                    out[k] = np.array(vals, dtype=bool)
-                elif isinstance(v0, (int, float, np.number)):
-                    out[k] = np.array(vals, dtype=type(v0))
-                elif isinstance(v0, np.ndarray):
-                    out[k] = np.stack(vals)
-                else:
-                    continue
-                out[f"_{k}"] = np.ones(n, dtype=bool)
-                stacked.add(k)
-        if uniform and len(stacked) == len(keys0):
-            return out
-        for i in present:
-            rest = {k: v for k, v in infos[i].items() if k not in stacked}
-            if rest:
-                out = self._add_info(out, rest, i)
-        return out
-
-    def _world_infos(self, cols_, rows: dict, extras: dict) -> list[dict]:
-        """The infos as one dict per world, as the single env returns them (for SB3's adapter)."""
-        idx, cols = cols_
-        infos: list[dict] = [{} for _ in range(self.num_envs)]
-        if cols:
-            keys = list(cols)
-            values = [v.tolist() if v.ndim == 1 else list(v) for v in cols.values()]
-            for i, vals in zip(idx, zip(*values)):
-                infos[i] = dict(zip(keys, vals))
-        for i, extra in extras.items():
-            infos[i].update(extra)
-        for i, info in rows.items():
-            infos[i] = info
-        return infos
 
     # ------------------------------------------------------------------ rendering, closing, pickling
     def render(self, env_index: int | None = None):

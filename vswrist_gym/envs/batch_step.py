@@ -1,0 +1,232 @@
+"""The array step: ``VSWristEnv._begin_step`` and ``_finish_step`` of a batch's live worlds, over arrays
+(``VSWristVectorEnv``'s mixin), for every batch, one world or many.
+
+Before the physics: action clipping and maps, and the analytic controller (modes ``posture_stiffness`` and
+``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics and the
+``motor`` mode world by world; then the task's loads, ``_before_physics_worlds`` (over arrays of worlds where the
+task writes them so: Drill, LoadHold; else each world's ``_before_physics``).
+
+After the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool wrench: what
+``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics threads, or in
+Python without it, and computed over arrays by ``BatchSim``'s reads), its reference (a row of the table its reset
+computed: ``_reference`` is written over arrays of times), its task hooks (``_contact_force``, ``_task_reward_terms``,
+``_task_info``, task observation terms) and its sensor noise (from its own generator, in the single env's order) run
+world by world; the observation, the reward terms and the info metrics are the single env's own functions over arrays
+(``observations.observe``, ``rewards.common_reward_terms``, ``weigh``, ``step_metrics``), and the rest is the single
+env's operations in its order, so world i of a batch is the single env with seed s + i (to the bit on one machine:
+``tests/test_batch.py`` checks 1e-9). A task may change the step through its hooks, not by overriding one of the
+``STEP_METHODS`` (such a task is refused when its batch is made).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..stiffness import SpringLaw, spring_energy
+from .observations import observe
+from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
+
+# the single env's step methods that the array step computes over arrays (a batch of a task overriding one is
+# refused: the batch would not run the override); the hooks it calls per world, or over arrays
+# (``_tracking_error``), stay the task's
+STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
+                "_draw_noise", "_obs_terms")
+
+
+class BatchMeasures:
+    """``observations.observe``'s measures of a batch's live worlds after a step: (N, ...) arrays, and the reads
+    of their simulators over arrays from the gathered rows ``G`` (``BatchSim``'s reads)."""
+
+    __slots__ = ("worlds", "bsim", "G", "posture", "deflections", "Q", "law", "contact", "lam", "prev_action",
+                 "target", "step", "noise")
+
+    def __init__(self, worlds, bsim, G, P, D, Q, law, contact, lam, prev_action, target, step, noise):
+        self.worlds, self.bsim, self.G, self.Q = worlds, bsim, G, Q
+        self.posture, self.deflections, self.law, self.contact = P, D, law, contact
+        self.lam, self.prev_action, self.target, self.step, self.noise = lam, prev_action, target, step, noise
+
+    def posture_rate(self) -> np.ndarray:
+        return self.bsim.read_posture_rate(self.G, self.posture)
+
+    def motor_angles(self) -> np.ndarray:
+        return self.bsim.read_motor_angles(self.Q)
+
+    def tool_wrench(self) -> np.ndarray:
+        return self.bsim.read_tool_wrench(self.G)
+
+    def jacobian(self) -> np.ndarray:
+        # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+        P = self.posture
+        _, (J0, J1), _, _ = self.worlds[0].ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
+        return np.stack([J0.T, J1.T], axis=-1)
+
+    def task_term(self, term) -> np.ndarray:
+        """A task's own term, world by world (it reads each world's state)."""
+        name, L = term.name, len(self.worlds)
+        return np.array([e._terms[name].fn() for e in self.worlds], dtype=float).reshape(L, term.size)
+
+
+class ArrayStepMixin:
+    """``_begin`` and ``_finish`` of ``VSWristVectorEnv``: the single env's step phases over arrays of worlds."""
+
+    def _begin(self, worlds: list, acts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``, over
+        arrays where the mode runs the controller with a commanded lam); returns the clipped actions and the
+        motor references (L, 4) where the controller computed them over arrays (else None)."""
+        A = np.maximum(acts, -1.0)
+        np.minimum(A, 1.0, out=A)
+        first = worlds[0]
+        mode = self._mode
+        if mode in ("posture_stiffness", "residual"):
+            if mode == "posture_stiffness":
+                ref, s = first.posture_map.to_posture(A[:, :3]), A[:, 3]
+            else:
+                r = first.cfg["residual"]
+                target = np.array([e._target for e in worlds])
+                ref = first.posture_map.clip(target + r["posture_scale"] * A[:, :3])
+                s = r["stiffness_nominal"] + r["stiffness_scale"] * A[:, 3]
+            # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+            theta, lam, u = first.ctrl.step_batch(ref, first.stiffness_map.to_lam_batch(s))
+            for e, a, th, (ay, az, ps), lam_k in zip(worlds, A, theta, u.tolist(), lam.tolist()):
+                c = e.ctrl
+                c._u, c._ps, c.lam = (ay, az), ps, lam_k
+                e._a, e._theta = a, th
+        else:  # motor (no controller) and posture_compliance (LM dynamics per world)
+            theta = None
+            for e, a in zip(worlds, A):
+                e._a, e._theta = a, e._motor_refs(a)
+        if self._hook_before:
+            type(first)._before_physics_worlds(worlds, np.array([e._t for e in worlds]))
+        return A, theta
+
+    def _finish(self, worlds: list, A: np.ndarray, G: np.ndarray | None = None):
+        """``VSWristEnv._finish_step`` of the live worlds: the simulators' reads come gathered in ``G`` (rows of
+        ``batch_sim.gather_plan``, filled by the compiled advance; None: gathered here), the task hooks run world by
+        world (in the single env's order, so each draws its noise from its own generator as it would alone);
+        the measures' math, rewards, observation and info run over arrays."""
+        first = worlds[0]
+        L = len(worlds)
+        dt = first.ctrl_dt
+        light = first._light_sync
+        bsim = self.batch_sim
+        noise = first._noise_std is not None
+        failed = [e._failure for e in worlds]
+        hook_contact = self._hook_contact
+        # world by world, first (the single env's step up to ``_measure``'s contact hook): the step count and
+        # time, the task's contact force; and what the arrays below need of each world's state
+        contact, K, d0, T, lam, prev, nz_rows, steps = [], [], [], [], [], [], [], []
+        for e in worlds:
+            e._theta_prev = e._theta
+            k = e._step + 1
+            e._step = k
+            e._t = k * dt
+            steps.append(k)
+            sp = e.params.spring
+            K.append(sp.K)
+            d0.append(sp.delta0)
+            T.append(e._references[k])
+            lam.append(e.ctrl.lam)
+            prev.append(e._prev_action)
+            if noise:
+                nz = e._nz = e._noise[k]  # ``_draw_noise`` (the task's own observation terms may read it)
+                nz_rows.append(nz)
+            contact.append(e._contact_force() if hook_contact else 0.0)
+        sims = [e.sim for e in worlds]
+        redo = []
+        for k in range(L):
+            if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure does
+                if light:
+                    sims[k].sync_kinematics()
+                sims[k].posture()
+                redo.append(k)
+        if G is None:
+            G = bsim.gather(sims)
+        elif redo:
+            G[redo] = bsim.gather([sims[k] for k in redo])
+        P, D, Q = bsim.read_posture(G)
+        bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
+        failures: dict[int, str] = {k: failed[k] for k in range(L) if failed[k] is not None}
+        for k in np.flatnonzero(bad).tolist():
+            if k not in failures:
+                failures[k] = f"non-finite state at t = {worlds[k]._t:.3f} s"
+        closure = bsim.read_closure(G, sims)
+        for k in failures:
+            # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
+            e = worlds[k]
+            closure[k] = math.inf
+            e.sim.reset()
+            e.sim.apply_wrench(np.zeros(3), np.zeros(3))
+            e._measure()
+            P[k], D[k], contact[k] = e._posture, e._defl, e._contact
+            G[k] = bsim.gather([e.sim])[0]  # what the observation reads: the clean state
+            Q[k] = bsim.qpos(G[k:k + 1])[0]
+        law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
+        e3 = spring_energy(D, law)
+        energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
+        T = np.array(T)
+        err = wrap_angle(P - T)
+        contact_a = np.array(contact)
+        closure_a = np.array(closure)
+        steps = np.array(steps)
+        lam = np.array(lam)
+        prev = np.array(prev)
+        terminated = np.zeros(L, dtype=bool)
+        terminated[list(failures)] = True
+        PA = A.astype(np.float32)
+        time_up = ~terminated & (steps >= first.episode_steps)
+        exceeded = closure_a > first._closure_warn
+        cut = ~terminated & exceeded if first._closure_truncate else np.zeros(L, dtype=bool)
+        truncated = time_up | cut
+        ends = (terminated | truncated).tolist()
+
+        # world by world: the state the single env keeps, the task's reward terms
+        hook_reward = self._hook_reward
+        task_raw = []
+        peak, sumsq = [], []
+        Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
+        for e, p, d, pl, dl, en, c, cl, tg, er, pa, end in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err,
+                                                                PA, ends):
+            e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
+            e._energy, e._contact, e._closure, e._target = en, c, cl, tg
+            pk = e._peak_contact
+            pk = c if c > pk else pk  # = max(pk, c)
+            e._peak_contact = pk
+            peak.append(pk)
+            sq = e._sum_contact_sq + c * c
+            e._sum_contact_sq = sq
+            sumsq.append(sq)
+            h = e._history
+            h["error"].append(er)
+            h["energy"].append(en)
+            h["contact"].append(c)
+            if hook_reward:
+                task_raw.append(e._task_reward_terms(er))
+            e._prev_action = pa
+            e._needs_reset = end
+        NZ = np.array(nz_rows) if noise else None
+
+        # reward (the single env's terms, over arrays)
+        rterms = common_reward_terms(first._tracking_error(err), energy, A, prev, terminated, first.cfg["scales"])
+        if hook_reward:
+            for name in first.task_reward_terms:
+                rterms[name] = np.array([d[name] for d in task_raw])
+        cols, reward = weigh(rterms, first.reward_weights)
+
+        # observation (the single env's terms, over arrays)
+        obs = observe(first.obs_terms, BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, NZ),
+                      first._obs_low, first._obs_high)
+
+        # info (the single env's metrics, over arrays)
+        success = np.zeros(L, dtype=bool)
+        for k in np.flatnonzero(time_up & ~cut).tolist():
+            success[k] = bool(worlds[k]._success())
+        cols.update(step_metrics(err, contact_a, np.array(peak), np.array(sumsq), steps, energy, lam, closure_a,
+                                 first._closure_warn, steps * dt, success))
+        if self._hook_info:
+            extra = [e._task_info() for e in worlds]
+            for key in extra[0]:
+                cols[key] = np.array([x[key] for x in extra])
+        cols["posture_error_vec"] = err
+        return obs, reward, terminated, truncated, cols, failures
