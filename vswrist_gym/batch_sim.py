@@ -8,19 +8,20 @@ loop-closure bodies, the tool's sensors). Those belong to the simulator layer; t
 through this interface only.
 
 The reads compute what ``WristSim.posture``/``deflections``/``posture_rate``/``loop_closure_peak``/
-``tool_wrench`` compute, with math's asin/atan2 element by element as those do, so that world i of a batch is
-the single env to the bit on one machine.
+``tool_wrench`` compute, through the same functions (``sim.coupler_angles``, ``sim.posture_rate_terms``,
+``sim.tool_wrench_of``, ``native.weld_opening``) over arrays of worlds, so that world i of a batch is the single
+env on one machine.
 """
 
 from __future__ import annotations
 
-import math
 import os
 
 import numpy as np
 
 from .model import advance_lib as A
-from .sim import WristSim
+from .model.native import weld_opening
+from .sim import WristSim, coupler_angles, posture_rate_terms, tool_wrench_of
 
 OK, DIVERGED, MUJOCO_ERROR = A.OK, A.DIVERGED, A.MUJOCO_ERROR  # a world's status after a period
 
@@ -182,10 +183,8 @@ class BatchSim:
         ps, q1, m3, _ = self._qadr
         Q = G[:, self.cols["qpos"]]
         X = G[:, self.cols["coupler_xmat"]]
-        asin, atan2 = math.asin, math.atan2
         P = np.empty((len(G), 3))
-        P[:, 0] = [asin(max(-1.0, min(1.0, -r6))) for r6 in X[:, 6].tolist()]
-        P[:, 1] = [atan2(r3, r0) for r3, r0 in zip(X[:, 3].tolist(), X[:, 0].tolist())]
+        P[:, :2] = [coupler_angles(r0, r3, r6) for r0, r3, r6 in X[:, [0, 3, 6]].tolist()]
         P[:, 2] = Q[:, ps]
         return P, Q[:, q1] - Q[:, m3], Q
 
@@ -196,26 +195,17 @@ class BatchSim:
     def read_tool_wrench(self, G: np.ndarray) -> np.ndarray:
         """``WristSim.tool_wrench`` of every world (N, 6): the tool's force/torque sensors rotated to the base."""
         c = self.cols
-        R = G[:, c["tool_R"]].reshape(len(G), 3, 3)
-        FT = np.stack([G[:, c["tool_f"]], G[:, c["tool_t"]]], axis=1)  # (N, 2, 3)
-        return np.matmul(R[:, None], FT[:, :, :, None]).reshape(len(G), 6)
+        return tool_wrench_of(G[:, c["tool_R"]].reshape(len(G), 3, 3), G[:, c["tool_f"]], G[:, c["tool_t"]])
 
     def read_posture_rate(self, G: np.ndarray, P: np.ndarray) -> np.ndarray:
         """d/dt of the postures (N, 3) (``WristSim.posture_rate``; P: the postures just read)."""
         C = G[:, self.cols["coupler_cvel"]]
-        wx, wy, wz = C[:, 0], C[:, 1], C[:, 2]
-        ay, az = P[:, 0], P[:, 1]
-        sz, cz = np.sin(az), np.cos(az)
-        ax_rate = (cz * wx + sz * wy) / np.cos(ay)
-        out = np.empty((len(G), 3))
-        out[:, 0] = -sz * wx + cz * wy
-        out[:, 1] = wz + np.sin(ay) * ax_rate
-        out[:, 2] = G[:, self.cols["ps_rate"]][:, 0]
-        return out
+        return np.stack(posture_rate_terms(C[:, 0], C[:, 1], C[:, 2], P[:, 0], P[:, 1],
+                                           G[:, self.cols["ps_rate"]][:, 0], np.sin, np.cos), axis=1)
 
     def read_closure(self, G: np.ndarray, sims: list) -> list:
         """``WristSim.loop_closure_peak`` of every world (after the period's sync). After a light sync the
-        monitor has not seen the final state: its weld violation (``native.weld_violation``) over arrays."""
+        monitor has not seen the final state: its weld violation (``native.weld_opening``) over arrays."""
         c = self.cols
         light = self.light
         peak = G[:, c["peak"]][:, 0]
@@ -224,15 +214,12 @@ class BatchSim:
             out = peak.tolist()
         else:
             cid = self._coupler
-            qc = G[:, c[f"xquat{cid}"]]
-            pc = G[:, c[f"xpos{cid}"]]
+            pc, qc = G[:, c[f"xpos{cid}"]].T, G[:, c[f"xquat{cid}"]].T  # columns of worlds
             worst = np.zeros(len(G))
             for e in self._ends:
-                pe, q = G[:, c[f"xpos{e}"]], G[:, c[f"xquat{e}"]]
-                dx, dy, dz = (pe[:, j] - pc[:, j] for j in range(3))
-                dot = np.abs(qc[:, 0] * q[:, 0] + qc[:, 1] * q[:, 1] + qc[:, 2] * q[:, 2] + qc[:, 3] * q[:, 3])
-                worst = np.maximum(worst, np.maximum(np.sqrt(dx * dx + dy * dy + dz * dz),
-                                                     2.0 * np.arccos(np.minimum(1.0, dot))))
+                opening = weld_opening(pc, qc, G[:, c[f"xpos{e}"]].T, G[:, c[f"xquat{e}"]].T, np.sqrt, np.arccos,
+                                       np.minimum)
+                worst = np.maximum(worst, np.maximum(*opening))
             out = np.where(worst > peak, worst, peak).tolist()
         for k in stale:  # not synced as the advance syncs (a failed step): the world's own accessor
             out[k] = sims[k].loop_closure_peak()

@@ -55,6 +55,30 @@ DIVERGED_MESSAGE = ("MuJoCo reported NaN or huge positions/velocities/accelerati
                     "timestep or constraint settings are too coarse for this motion")
 
 
+def coupler_angles(r0: float, r3: float, r6: float) -> tuple[float, float]:
+    """The measured RUD and FE (rad): ZYX Euler angles alpha_y, alpha_z of the coupler, from its rotation matrix's
+    entries R[0, 0], R[1, 0], R[2, 0] (``r0``, ``r3``, ``r6`` of ``xmat``). One world's numbers: a batch maps it
+    over its worlds (``batch_sim.BatchSim.read_posture``), since NumPy's arcsin and arctan2 may differ from
+    math's in the last bit."""
+    return math.asin(max(-1.0, min(1.0, -r6))), math.atan2(r3, r0)
+
+
+def posture_rate_terms(wx, wy, wz, ay, az, ps_rate, sin, cos) -> tuple:
+    """d/dt of (RUD, FE, PS) (rad/s) from the coupler's angular velocity (wx, wy, wz) (rad/s, world frame) at the
+    measured RUD ``ay`` and FE ``az`` and the PS joint's rate: one world's floats with math's ``sin``/``cos``, or
+    arrays of worlds with NumPy's (which round as math's)."""
+    sz, cz = sin(az), cos(az)
+    ax_rate = (cz * wx + sz * wy) / cos(ay)
+    return -sz * wx + cz * wy, wz + sin(ay) * ax_rate, ps_rate
+
+
+def tool_wrench_of(R: np.ndarray, force: np.ndarray, torque: np.ndarray) -> np.ndarray:
+    """(force N, torque N m) (..., 6) in the base frame from the tool site's rotation ``R`` (..., 3, 3) and its
+    force/torque sensors' readings (..., 3) in the site frame: one world's or a batch's (``batch_sim``)."""
+    FT = np.stack([force, torque], axis=-2)[..., None]  # (..., 2, 3, 1)
+    return np.matmul(R[..., None, :, :], FT).reshape(R.shape[:-2] + (6,))
+
+
 def add_contact_meter(spec: mujoco.MjSpec, name: str, body, geom1: str, geom2: str | None = None) -> bool:
     """Adds a ``vswrist.contact`` plugin instance ``name`` to a spec that runs the compiled physics (it names the
     VS-Wrist drive plugin), referenced by ``body`` (an MjsBody): after every substep's constraint solve it adds
@@ -315,8 +339,7 @@ class WristSim:
         if self._stale:
             self._forward()
         R = self._coupler_xmat.tolist()
-        ay = math.asin(max(-1.0, min(1.0, -R[6])))
-        az = math.atan2(R[3], R[0])
+        ay, az = coupler_angles(R[0], R[3], R[6])
         return np.array([ay, az, self._qpos[self._qadr_ps]])
 
     def posture_rate(self) -> np.ndarray:
@@ -325,11 +348,8 @@ class WristSim:
             self._forward()
         wx, wy, wz = self._coupler_cvel.tolist()[:3]
         R = self._coupler_xmat.tolist()
-        ay = math.asin(max(-1.0, min(1.0, -R[6])))
-        az = math.atan2(R[3], R[0])
-        sz, cz = math.sin(az), math.cos(az)
-        ax_rate = (cz * wx + sz * wy) / math.cos(ay)
-        return np.array([-sz * wx + cz * wy, wz + math.sin(ay) * ax_rate, self._qvel[self._vadr_ps]])
+        ay, az = coupler_angles(R[0], R[3], R[6])
+        return np.array(posture_rate_terms(wx, wy, wz, ay, az, self._qvel[self._vadr_ps], math.sin, math.cos))
 
     def deflections(self) -> np.ndarray:
         """Spring deflections delta = q1 - theta (3,), rad."""
@@ -384,8 +404,7 @@ class WristSim:
         base frame, torque about the tool mount. Zero with nothing attached."""
         if self._stale or self._light:
             self._forward()
-        R = self._tool_R
-        return np.concatenate([R @ self._tool_f, R @ self._tool_t])
+        return tool_wrench_of(self._tool_R, self._tool_f, self._tool_t)
 
     def loop_closure_error(self) -> float:
         """Largest violation of the loop-closure welds: position (m) or rotation angle (rad), whichever is larger."""

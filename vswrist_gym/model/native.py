@@ -70,16 +70,22 @@ def _py_passive(m, d) -> None:
     _py_closure(m, d)
 
 
+def weld_opening(pc, qc, pe, qe, sqrt, acos, minimum) -> tuple:
+    """How far one weld is open: the distance between the coupler's and a leg end's origins ``pc``, ``pe`` (x, y,
+    z; m) and the angle between their frames ``qc``, ``qe`` (quaternions w, x, y, z; rad). One world's floats with
+    math's ``sqrt``, ``acos`` and ``min``, or a batch's columns of worlds with NumPy's (``batch_sim``)."""
+    dx, dy, dz = pe[0] - pc[0], pe[1] - pc[1], pe[2] - pc[2]
+    dot = abs(qc[0] * qe[0] + qc[1] * qe[1] + qc[2] * qe[2] + qc[3] * qe[3])
+    return sqrt(dx * dx + dy * dy + dz * dz), 2.0 * acos(minimum(1.0, dot))
+
+
 def weld_violation(xpos, xquat, coupler: int, ends) -> float:
     """Largest violation of the welds between body ``coupler`` and bodies ``ends``: the distance between their
     origins (m) or the angle between their frames (rad), whichever is larger (the C monitor's formula)."""
     pc, qc = xpos[coupler].tolist(), xquat[coupler].tolist()
     worst = 0.0
     for e in ends:
-        pe, qe = xpos[e].tolist(), xquat[e].tolist()
-        dx, dy, dz = pe[0] - pc[0], pe[1] - pc[1], pe[2] - pc[2]
-        dot = abs(qc[0] * qe[0] + qc[1] * qe[1] + qc[2] * qe[2] + qc[3] * qe[3])
-        worst = max(worst, math.sqrt(dx * dx + dy * dy + dz * dz), 2.0 * math.acos(min(1.0, dot)))
+        worst = max(worst, *weld_opening(pc, qc, xpos[e].tolist(), xquat[e].tolist(), math.sqrt, math.acos, min))
     return worst
 
 
