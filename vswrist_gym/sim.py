@@ -75,8 +75,8 @@ def posture_rate_terms(wx, wy, wz, ay, az, ps_rate, sin, cos) -> tuple:
 def tool_wrench_of(R: np.ndarray, force: np.ndarray, torque: np.ndarray) -> np.ndarray:
     """(force N, torque N m) (..., 6) in the base frame from the tool site's rotation ``R`` (..., 3, 3) and its
     force/torque sensors' readings (..., 3) in the site frame: one world's or a batch's (``batch_sim``)."""
-    FT = np.stack([force, torque], axis=-2)[..., None]  # (..., 2, 3, 1)
-    return np.matmul(R[..., None, :, :], FT).reshape(R.shape[:-2] + (6,))
+    FT = np.concatenate([force, torque], axis=-1).reshape(force.shape[:-1] + (2, 3, 1))
+    return (R[..., None, :, :] @ FT).reshape(R.shape[:-2] + (6,))
 
 
 def add_contact_meter(spec: mujoco.MjSpec, name: str, body, geom1: str, geom2: str | None = None) -> bool:

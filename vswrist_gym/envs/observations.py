@@ -38,9 +38,7 @@ class ObsTerm:
 def _noisy(x, noise, a: int, b: int):
     """A measurement with its sensor noise, columns a..b-1 of the step's draws ``noise`` (..., 13) (None: no
     noise)."""
-    if noise is None:
-        return x
-    return x + (noise[..., a] if b == a + 1 else noise[..., a:b])
+    return x if noise is None else x + noise[..., a:b]
 
 
 def _column(x) -> np.ndarray:
@@ -48,9 +46,11 @@ def _column(x) -> np.ndarray:
     return np.asarray(x, dtype=float)[..., None]
 
 
-def touch(force):
-    """A touch sensor's reading: it never reads a pull (negative values, NaN too, read 0)."""
-    return np.where(force > 0.0, force, 0.0)
+def _touch(force, noise) -> np.ndarray:
+    """A touch sensor's reading with its noise (column 12 of the draws), as the term's column (..., 1): it never
+    reads a pull (negative values, NaN too, read 0)."""
+    f = force if noise is None else force + noise[..., 12]
+    return np.where(f > 0.0, f, 0.0)[..., None]
 
 
 _PAIRS = np.array([0, 0, 1]), np.array([0, 1, 1])  # J_a's columns in the products J0 J0, J0 J1, J1 J1
@@ -144,7 +144,7 @@ class ObservationsMixin:
                     lambda m: _noisy(m.tool_wrench(), m.noise, 6, 12)),
             ObsTerm("contact_force", 1, "N", "normal force between the tool and the task's objects (Insertion: the "
                     "hole's walls and chamfers, not the fit plate) (with noise)", None, 0.0, 1e5,
-                    lambda m: _column(touch(_noisy(m.contact, m.noise, 12, 13)))),
+                    lambda m: _touch(m.contact, m.noise)),
             ObsTerm("phase", 1, "-", "elapsed fraction of the episode", None, 0.0, 1.0,
                     lambda m: _column(m.step / steps)),
         ]

@@ -35,7 +35,7 @@ def common_reward_terms(tracked, energy, action, prev_action, terminated, scales
         "tracking": -np.sqrt(row_sum_sq(tracked)) / scales["tracking"],
         "energy": -energy / scales["energy"],
         "action_rate": -row_sum_sq(action - prev_action) / action.shape[-1],
-        "termination": np.where(terminated, -1.0, 0.0),
+        "termination": terminated * -1.0 + 0.0,  # -1 where it diverged, else 0 (+ 0.0: not -0.0)
     }
 
 
@@ -64,7 +64,7 @@ def step_metrics(err, contact, peak_contact, sum_contact_sq, step, energy, lam, 
         "posture_error": np.sqrt(_squared_norms(err)),
         "contact_force": contact,
         "peak_contact_force": peak_contact,
-        "rms_contact_force": np.sqrt(sum_contact_sq / np.maximum(step, 1)),
+        "rms_contact_force": np.sqrt(sum_contact_sq / (step + (step == 0))),  # over max(step, 1) steps
         "elastic_energy": energy,
         "lam": lam,
         "loop_closure": closure,
