@@ -203,7 +203,7 @@ class AnalyticController:
         """Motor references of N controllers sharing these parameters, at once: ``posture_ref`` (N, 3) finite
         (RUD, FE, PS) references, ``lam`` (N,) internal torques (N m). Returns (theta (N, 4), the clipped lam
         (N,), the clipped references (N, 3)); the controller's own state is not touched (the caller keeps one
-        controller per world and sets its ``_u``, ``_ps``, ``lam``)."""
+        controller per world and gives each its command, ``set_command``)."""
         ref = np.asarray(posture_ref, dtype=float)
         (rlo, rhi), (flo, fhi), (plo, phi) = self._limits
         ay = np.minimum(np.maximum(ref[:, 0], rlo), rhi)
@@ -225,6 +225,11 @@ class AnalyticController:
         theta[:, :3] = q1 - spring_deflection(np.stack([t0, t1, t2], axis=1), self._law)
         theta[:, 3] = ps
         return theta, lam_c, np.stack([ay, az, ps], axis=1)
+
+    def set_command(self, ay: float, az: float, ps: float, lam: float) -> None:
+        """Record a command that ``step_batch`` computed for this controller's world, as ``step`` records its own:
+        the clipped posture reference (RUD ``ay``, FE ``az``, PS ``ps``; rad) and lam (N m)."""
+        self._u, self._ps, self.lam = (ay, az), ps, lam
 
     def posture_kinematics_batch(self, ay: np.ndarray, az: np.ndarray, with_q1: bool = True):
         """``_posture_kinematics`` over arrays, the three legs stacked along a first axis: (q1 (N, 3) or None,

@@ -35,15 +35,9 @@ class StiffnessMap:
         self.lam_max, self.two_k, self.kind = float(lam_max), 2.0 * float(K), kind
         self._a = float(np.arcsinh(self.lam_max / self.two_k))
 
-    def to_lam(self, s: float) -> float:
-        f = 0.5 * (min(max(float(s), -1.0), 1.0) + 1.0)
-        if self.kind == "linear":
-            return f * self.lam_max
-        return self.two_k * float(np.sinh(f * self._a))
-
-    def to_lam_batch(self, s: np.ndarray) -> np.ndarray:
-        """``to_lam`` over an array of commands (the same arithmetic, element by element)."""
-        f = 0.5 * (np.minimum(np.maximum(s, -1.0), 1.0) + 1.0)
+    def to_lam(self, s):
+        """lam (N m) of stiffness commands ``s``: one world's number or a batch's array (clipped to [-1, 1])."""
+        f = 0.5 * (np.minimum(np.maximum(np.asarray(s, dtype=float), -1.0), 1.0) + 1.0)
         if self.kind == "linear":
             return f * self.lam_max
         return self.two_k * np.sinh(f * self._a)
@@ -142,18 +136,23 @@ class ActionsMixin:
         """The stiffness command in [-1, 1] that maps to internal torque ``lam`` (N m), clipped to [0, lam_max]."""
         return self.stiffness_map.to_command(lam)
 
+    def _posture_command(self, a: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Modes ``posture_stiffness`` and ``residual``: the posture reference (..., 3) (rad) and internal torque
+        lam (...) (N m) that clipped actions ``a`` (..., 4) command, ``target`` (..., 3) being the task's reference
+        now (``residual`` offsets it): one world's action or a batch's rows (``batch_step``)."""
+        if self.cfg["action_mode"] == "posture_stiffness":
+            return self.posture_map.to_posture(a[..., :3]), self.stiffness_map.to_lam(a[..., 3])
+        r = self.cfg["residual"]
+        ref = self.posture_map.clip(target + r["posture_scale"] * a[..., :3])
+        return ref, self.stiffness_map.to_lam(r["stiffness_nominal"] + r["stiffness_scale"] * a[..., 3])
+
     def _motor_refs(self, a: np.ndarray) -> np.ndarray:
         mode = self.cfg["action_mode"]
         if mode == "motor":
             return self._motor_lo + 0.5 * (a + 1.0) * (self._motor_hi - self._motor_lo)
-        if mode == "posture_stiffness":
-            ref = self.posture_map.to_posture(a[:3])
-            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(a[3]))
-        if mode == "residual":
-            r = self.cfg["residual"]
-            ref = self.posture_map.clip(self._target + r["posture_scale"] * a[:3])
-            s = r["stiffness_nominal"] + r["stiffness_scale"] * a[3]
-            return self.ctrl.step(ref, lam=self.stiffness_map.to_lam(s))
+        if mode != "posture_compliance":
+            ref, lam = self._posture_command(a, self._target)
+            return self.ctrl.step(ref, lam=lam)
         # posture_compliance: diagonal compliances log-mapped, off-diagonal as a correlation in (-0.9, 0.9)
         c = self.cfg["compliance"]
         ref = self.posture_map.to_posture(a[:3])

@@ -292,7 +292,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
             e._reset_state()
             e._randomize()
             u0, ps0, s0 = e._task_reset(e.np_random)
-            draws.append((u0, float(ps0), e.stiffness_map.to_lam(s0)))
+            draws.append((u0, float(ps0), float(e.stiffness_map.to_lam(s0))))
         worlds[0]._WristSim.reset_many([e.sim for e in worlds], [tuple(d[0]) for d in draws],
                                        [d[1] for d in draws], [d[2] for d in draws])
         for e, (u0, ps0, lam0) in zip(worlds, draws):

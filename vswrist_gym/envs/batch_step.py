@@ -80,18 +80,12 @@ class ArrayStepMixin:
         first = worlds[0]
         mode = self._mode
         if mode in ("posture_stiffness", "residual"):
-            if mode == "posture_stiffness":
-                ref, s = first.posture_map.to_posture(A[:, :3]), A[:, 3]
-            else:
-                r = first.cfg["residual"]
-                target = np.array([e._target for e in worlds])
-                ref = first.posture_map.clip(target + r["posture_scale"] * A[:, :3])
-                s = r["stiffness_nominal"] + r["stiffness_scale"] * A[:, 3]
+            target = np.array([e._target for e in worlds]) if mode == "residual" else None
+            ref, lam = first._posture_command(A, target)
             # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
-            theta, lam, u = first.ctrl.step_batch(ref, first.stiffness_map.to_lam_batch(s))
+            theta, lam, u = first.ctrl.step_batch(ref, lam)
             for e, a, th, (ay, az, ps), lam_k in zip(worlds, A, theta, u.tolist(), lam.tolist()):
-                c = e.ctrl
-                c._u, c._ps, c.lam = (ay, az), ps, lam_k
+                e.ctrl.set_command(ay, az, ps, lam_k)
                 e._a, e._theta = a, th
         else:  # motor (no controller) and posture_compliance (LM dynamics per world)
             theta = None
