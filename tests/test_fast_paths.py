@@ -70,6 +70,12 @@ def test_sum_of_squares_adds_in_order_for_one_world_and_a_batch():
               for J, s in zip(Ja, sig)]
     np.testing.assert_array_equal(coupler_stiffness(Ja, sig), by_leg)
     assert all(np.array_equal(coupler_stiffness(J, s), b) for J, s, b in zip(Ja, sig, by_leg))
+    from vswrist_gym.stiffness import SpringLaw, spring_energy, stored_energy
+    D, law = rng.uniform(-0.3, 0.3, size=(6, 3)), SpringLaw(rng.uniform(3, 5, size=(6, 1)), 0.1)
+    per_spring = spring_energy(D, law).tolist()
+    np.testing.assert_array_equal(stored_energy(D, law), [e0 + e1 + e2 for e0, e1, e2 in per_spring])
+    assert [stored_energy(d, SpringLaw(k[0], 0.1)) for d, k in zip(D, law.K)] == [e0 + e1 + e2 for e0, e1, e2 in
+                                                                                   per_spring]
 
 
 def test_observed_stiffness_equals_the_papers_formula_from_kinematics_at():

@@ -71,6 +71,12 @@ def spring_energy(delta, params: WristParams | str | None = None):
     return 2.0 * s.K * s.delta0 * (np.cosh(np.asarray(delta, dtype=float) / s.delta0) - 1.0)
 
 
+def stored_energy(delta, params: WristParams | str | None = None):
+    """Energy stored in the three springs (J) at deflections ``delta`` (..., 3): ``spring_energy`` summed over
+    the springs in order (NumPy adds fewer than 8 terms in order), one world's or a batch's rows alike."""
+    return np.add.reduce(spring_energy(delta, params), axis=-1)
+
+
 def spring_stiffness_at_torque(tau, params: WristParams | str | None = None):
     """sigma_s as a function of the spring torque: (2K/delta0) sqrt(1 + (tau/2K)^2) (N m/rad)."""
     s = _spring(params)

@@ -36,7 +36,7 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from ..params import load_params
-from ..stiffness import spring_energy
+from ..stiffness import stored_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
 from .config import EnvConfigError, load_env_config, merge, validate_task
 from .observations import ObservationsMixin
@@ -383,13 +383,8 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
             self.sim.apply_wrench(np.zeros(3), np.zeros(3))
             self._measure()
         self._target = self._references[self._step]
-        self._peak_contact = max(self._peak_contact, self._contact)
-        self._sum_contact_sq += self._contact * self._contact
-
         err = wrap_angle(self._posture - self._target)
-        self._history["error"].append(err)
-        self._history["energy"].append(self._energy)
-        self._history["contact"].append(self._contact)
+        self._record_step(err)
         weighted, reward = self._reward(err, a, failure)
         self._prev_action = a.astype(np.float32)
         terminated = failure is not None
@@ -405,6 +400,17 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
             info["simulation_error"] = failure
         return obs, float(reward), terminated, truncated, info
 
+    def _record_step(self, err: np.ndarray) -> None:
+        """The episode's record after a step's measures (the single env's step, and each world of a batch's): the
+        contact force's peak and sum of squares, and the history that the success criteria read."""
+        c = self._contact
+        self._peak_contact = max(self._peak_contact, c)
+        self._sum_contact_sq += c * c
+        h = self._history
+        h["error"].append(err)
+        h["energy"].append(self._energy)
+        h["contact"].append(c)
+
     def _measure(self) -> None:
         """Read the simulator once per step (``posture()`` also brings its sensors up to date, unless
         neither the task nor the observation reads them: then only poses and velocities are updated)."""
@@ -414,8 +420,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._defl = self.sim.deflections()
         self._posture_list = self._posture.tolist()
         self._defl_list = self._defl.tolist()
-        e0, e1, e2 = spring_energy(self._defl, self.params).tolist()
-        self._energy = e0 + e1 + e2  # = np.sum of 3 terms, same order
+        self._energy = float(stored_energy(self._defl, self.params))
         self._contact = self._contact_force()
 
     # ------------------------------------------------------------------ task hooks

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from ..stiffness import SpringLaw, spring_energy
+from ..stiffness import SpringLaw, stored_energy
 from .observations import observe
 from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
 
@@ -157,8 +157,7 @@ class ArrayStepMixin:
             G[k] = bsim.gather([e.sim])[0]  # what the observation reads: the clean state
             Q[k] = bsim.qpos(G[k:k + 1])[0]
         law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
-        e3 = spring_energy(D, law)
-        energy = e3[:, 0] + e3[:, 1] + e3[:, 2]
+        energy = stored_energy(D, law)
         T = np.array(T)
         err = wrap_angle(P - T)
         contact_a = np.array(contact)
@@ -184,17 +183,9 @@ class ArrayStepMixin:
                                                                 PA, ends):
             e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
             e._energy, e._contact, e._closure, e._target = en, c, cl, tg
-            pk = e._peak_contact
-            pk = c if c > pk else pk  # = max(pk, c)
-            e._peak_contact = pk
-            peak.append(pk)
-            sq = e._sum_contact_sq + c * c
-            e._sum_contact_sq = sq
-            sumsq.append(sq)
-            h = e._history
-            h["error"].append(er)
-            h["energy"].append(en)
-            h["contact"].append(c)
+            e._record_step(er)
+            peak.append(e._peak_contact)
+            sumsq.append(e._sum_contact_sq)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))
             e._prev_action = pa

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..stiffness import spring_energy
+from ..stiffness import stored_energy
 
 COMMON_REWARD_TERMS = ("tracking", "energy", "action_rate", "termination")
 FORCE_CAP = 10.0  # force penalties saturate at FORCE_CAP x scales.force: one violent contact sample (rigid
@@ -106,5 +106,4 @@ class RewardsMixin:
     def elastic_energy(self) -> float:
         """Energy stored in the three springs (J): sum of 2 K delta0 (cosh(delta/delta0) - 1), the integral of
         the spring law, with the simulator's (possibly randomised) spring parameters."""
-        e0, e1, e2 = spring_energy(self.sim.deflections(), self.params).tolist()
-        return e0 + e1 + e2
+        return float(stored_energy(self.sim.deflections(), self.params))
