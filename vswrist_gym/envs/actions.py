@@ -97,6 +97,28 @@ def check_action(action, shape: tuple[int, ...]) -> np.ndarray:
     return a
 
 
+def check_actions(actions, n: int, shape: tuple[int, ...]) -> np.ndarray:
+    """A batch's actions (``n`` rows of ``shape``) as float64, or a ``ValueError`` naming the env index of the
+    first bad row: checked before any world is stepped, so a bad batch changes nothing."""
+    try:
+        arr = np.asarray(actions)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"actions must be an array of shape ({n}, {', '.join(map(str, shape))}), got "
+                         f"{type(actions).__name__} that is not a regular array: {exc}") from None
+    if arr.shape != (n,) + shape:
+        raise ValueError(f"actions must have shape {(n,) + shape} (one row per env), got {arr.shape}")
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(f"actions must hold real numbers (a float or integer dtype), got dtype {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all():
+        for i in range(n):
+            try:
+                check_action(arr[i], shape)
+            except ValueError as exc:
+                raise ValueError(f"env {i}: {exc}") from None
+    return arr
+
+
 class ActionsMixin:
     """The action side of ``VSWristEnv``: command maps built at construction, action -> motor references."""
 

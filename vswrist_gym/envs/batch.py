@@ -37,7 +37,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..batch_sim import BatchSim
-from .actions import check_action
+from .actions import check_actions
 from .base import VSWristEnv
 from .batch_physics import PhysicsMixin
 from .batch_step import STEP_METHODS, ArrayStepMixin
@@ -243,24 +243,7 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
 
     def check_actions(self, actions) -> np.ndarray:
         """The batch of actions as float64 (N, action_dim), or a ``ValueError`` naming the env index."""
-        n, shape = self.num_envs, self._act_shape
-        try:
-            arr = np.asarray(actions)
-        except (ValueError, TypeError) as exc:
-            raise ValueError(f"actions must be an array of shape ({n}, {', '.join(map(str, shape))}), got "
-                             f"{type(actions).__name__} that is not a regular array: {exc}") from None
-        if arr.shape != (n,) + shape:
-            raise ValueError(f"actions must have shape {(n,) + shape} (one row per env), got {arr.shape}")
-        if arr.dtype.kind not in "fiu":
-            raise ValueError(f"actions must hold real numbers (a float or integer dtype), got dtype {arr.dtype}")
-        arr = arr.astype(np.float64)
-        if not np.isfinite(arr).all():
-            for i in range(n):
-                try:
-                    check_action(arr[i], shape)
-                except ValueError as exc:
-                    raise ValueError(f"env {i}: {exc}") from None
-        return arr
+        return check_actions(actions, self.num_envs, self._act_shape)
 
     def step(self, actions):
         obs, rew, term, trunc, (cols, rows, extras) = self._step_core(actions)
