@@ -40,12 +40,17 @@ class BatchMeasures:
     of their simulators over arrays from the gathered rows ``G`` (``BatchSim``'s reads)."""
 
     __slots__ = ("worlds", "bsim", "G", "posture", "deflections", "Q", "law", "contact", "lam", "prev_action",
-                 "target", "step", "noise")
+                 "target", "step", "time", "noise")
 
-    def __init__(self, worlds, bsim, G, P, D, Q, law, contact, lam, prev_action, target, step, noise):
+    def __init__(self, worlds, bsim, G, P, D, Q, law, contact, lam, prev_action, target, step, time, noise):
         self.worlds, self.bsim, self.G, self.Q = worlds, bsim, G, Q
         self.posture, self.deflections, self.law, self.contact = P, D, law, contact
-        self.lam, self.prev_action, self.target, self.step, self.noise = lam, prev_action, target, step, noise
+        self.lam, self.prev_action, self.target, self.step = lam, prev_action, target, step
+        self.time, self.noise = time, noise
+
+    def each(self, name: str) -> np.ndarray:
+        """A task attribute of every world (N,) (the episode's draws that a task's term reads)."""
+        return np.array([getattr(e, name) for e in self.worlds])
 
     def posture_rate(self) -> np.ndarray:
         return self.bsim.read_posture_rate(self.G, self.posture)
@@ -200,15 +205,16 @@ class ArrayStepMixin:
         cols, reward = weigh(rterms, first.reward_weights)
 
         # observation (the single env's terms, over arrays)
-        obs = observe(first.obs_terms, BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, NZ),
-                      first._obs_low, first._obs_high)
+        t = steps * dt
+        measures = BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, t, NZ)
+        obs = observe(first.obs_terms, measures, first._obs_low, first._obs_high)
 
         # info (the single env's metrics, over arrays)
         success = np.zeros(L, dtype=bool)
         for k in np.flatnonzero(time_up & ~cut).tolist():
             success[k] = bool(worlds[k]._success())
         cols.update(step_metrics(err, contact_a, np.array(peak), np.array(sumsq), steps, energy, lam, closure_a,
-                                 first._closure_warn, steps * dt, success))
+                                 first._closure_warn, t, success))
         if self._hook_info:
             extra = [e._task_info() for e in worlds]
             for key in extra[0]:

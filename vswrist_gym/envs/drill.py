@@ -62,13 +62,15 @@ class DrillEnv(VSWristEnv):
     cue_lead_s = 0.5
 
     def _task_obs_terms(self):
-        from .observations import ObsTerm
-        return [ObsTerm("engage_cue", 1, "-", f"1 from {self.cue_lead_s:g} s before the drill engages until it "
-                        "releases (the announced drill: Drill-v1 on), else 0", self._obs_engage_cue, 0.0, 1.0)]
+        from .observations import ObsTerm, flag_column
+        lead = self.cue_lead_s
 
-    def _obs_engage_cue(self) -> np.ndarray:
-        t = self._t + 1e-12
-        return np.array([1.0 if self._t_on - self.cue_lead_s <= t < self._t_off else 0.0])
+        def engage_cue(m):
+            t = m.time + 1e-12
+            return flag_column((m.each("_t_on") - lead <= t) & (t < m.each("_t_off")))
+
+        return [ObsTerm("engage_cue", 1, "-", f"1 from {lead:g} s before the drill engages until it releases (the "
+                        "announced drill: Drill-v1 on), else 0", None, 0.0, 1.0, engage_cue)]
 
     def _scene(self, spec) -> None:
         L = FINGER_END + self.tp["tool_length"]

@@ -62,12 +62,11 @@ class LoadHoldEnv(VSWristEnv):
     cue_lead_s = 0.5
 
     def _task_obs_terms(self):
-        from .observations import ObsTerm
-        return [ObsTerm("load_cue", 1, "-", f"1 from {self.cue_lead_s:g} s before the load arrives on (the "
-                        "announced load: LoadHold-v1 on), else 0", self._obs_load_cue, 0.0, 1.0)]
-
-    def _obs_load_cue(self) -> np.ndarray:
-        return np.array([1.0 if self._t + 1e-12 >= self._onset - self.cue_lead_s else 0.0])
+        from .observations import ObsTerm, flag_column
+        lead = self.cue_lead_s
+        return [ObsTerm("load_cue", 1, "-", f"1 from {lead:g} s before the load arrives on (the announced load: "
+                        "LoadHold-v1 on), else 0", None, 0.0, 1.0,
+                        lambda m: flag_column(m.time + 1e-12 >= m.each("_onset") - lead))]
 
     def _sample_posture(self, rng) -> np.ndarray:
         f = self.tp["target_fraction"]

@@ -46,6 +46,11 @@ def _column(x) -> np.ndarray:
     return np.asarray(x, dtype=float)[..., None]
 
 
+def flag_column(flag) -> np.ndarray:
+    """A condition per world (a bool or a bool array) as the term's column of 1.0 or 0.0 (..., 1)."""
+    return _column(flag * 1.0)
+
+
 def _touch(force, noise) -> np.ndarray:
     """A touch sensor's reading with its noise (column 12 of the draws), as the term's column (..., 1): it never
     reads a pull (negative values, NaN too, read 0)."""
@@ -66,7 +71,8 @@ def coupler_stiffness(Ja, sigma) -> np.ndarray:
 def observe(terms: list, measures, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """The observation of the worlds ``measures`` describes (float32 (..., size)): every term in order, clipped
     to the bounds (NaN passes through). ``measures`` holds the step's arrays (``posture``, ``deflections``,
-    ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``noise``), the simulator's reads that
+    ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``time``, ``noise``), each world's task
+    attribute ``each(name)``, the simulator's reads that
     only some terms need (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``, ``jacobian()``: J_a (..., 3
     legs, 2)) and ``task_term(term)``, a task's own term over its worlds."""
     raw = np.concatenate([t.of(measures) if t.of is not None else measures.task_term(t) for t in terms], axis=-1)
@@ -77,13 +83,16 @@ class WorldMeasures:
     """``observe``'s measures of one env (no batch axis): its step's state, and its simulator's reads."""
 
     __slots__ = ("env", "posture", "deflections", "law", "contact", "lam", "prev_action", "target", "step",
-                 "noise")
+                 "time", "noise")
 
     def __init__(self, env):
         self.env = env
         self.posture, self.deflections, self.law = env._posture, env._defl, env.params
         self.contact, self.lam, self.prev_action = env._contact, env.ctrl.lam, env._prev_action
-        self.target, self.step, self.noise = env._target, env._step, env._nz
+        self.target, self.step, self.time, self.noise = env._target, env._step, env._t, env._nz
+
+    def each(self, name: str):
+        return getattr(self.env, name)
 
     def posture_rate(self) -> np.ndarray:
         return self.env.sim.posture_rate()
