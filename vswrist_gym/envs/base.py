@@ -91,8 +91,9 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
       tracking reward counts, indexing the last axis only: ``err[..., 1:]``; it gets (3,) or (N, 3)),
       ``_task_reward_terms(err) -> {name: unweighted value}``, ``_task_info() -> {name: number}`` (extra
       ``info`` entries, the same keys every step), ``_success() -> bool``
-      (at the episode's last step, from ``self._history``), optionally ``_task_obs_terms()`` and
-      ``_validate_task()``.
+      (at the episode's last step, from ``self._history``), optionally ``_task_obs_terms()`` (``ObsTerm``s:
+      over arrays of worlds, ``of(measures)``, as LoadHold's and Drill's cues, or one world's ``fn()``, which a
+      batch calls world by world) and ``_validate_task()``.
 
     Everything else (actions, observations, noise, randomisation, rewards, info, divergence, rendering,
     pickling, batching) comes from the base and its mixins and needs no task code.
