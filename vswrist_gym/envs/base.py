@@ -61,6 +61,16 @@ def _import_controller():
     return AnalyticController
 
 
+def episode_end(terminated, step, episode_steps: int, closure, closure_warn: float, closure_truncate: bool):
+    """How a step ends the episode, over arrays of worlds or one world's numbers: (time_up, cut, truncated). The
+    last step (``episode_steps``) of an episode not ended by a divergence (``terminated``); ``closure_truncate``:
+    the welds opened past ``closure_warn``, so the physics from here on is not trustworthy; either truncates."""
+    going = np.logical_not(terminated)
+    time_up = going & (step >= episode_steps)
+    cut = going & (closure > closure_warn) & closure_truncate
+    return time_up, cut, time_up | cut
+
+
 class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMixin, SceneMixin, gym.Env):
     """Base class of every VS-Wrist task (do not instantiate directly; use ``gymnasium.make``).
 
@@ -368,9 +378,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
 
     def _finish_step(self):
         a, failure = self._a, self._failure
-        self._theta_prev = self._theta
-        self._step += 1
-        self._t = self._step * self.ctrl_dt
+        self._tick()
         self._measure()
         if failure is None and not all(x - x == 0.0 for x in self._posture_list + self._defl_list):  # finite?
             failure = f"non-finite state at t = {self._t:.3f} s"
@@ -389,17 +397,24 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         weighted, reward = self._reward(err, a, failure)
         self._prev_action = a.astype(np.float32)
         terminated = failure is not None
-        time_up = not terminated and self._step >= self.episode_steps
-        # closure_truncate: the welds opened past closure_warn, so the physics from here on is not trustworthy
-        cut = not terminated and self._closure_truncate and self._closure > self._closure_warn
-        truncated = time_up or cut
+        time_up, cut, truncated = episode_end(terminated, self._step, self.episode_steps, self._closure,
+                                              self._closure_warn, self._closure_truncate)
+        truncated = bool(truncated)
         self._needs_reset = terminated or truncated
         obs = self._observation()
-        info = self._info(weighted, final=time_up and not cut, err=err)
+        info = self._info(weighted, final=bool(time_up & ~cut), err=err)
         info["posture_error_vec"] = err
         if terminated:
             info["simulation_error"] = failure
         return obs, float(reward), terminated, truncated, info
+
+    def _tick(self) -> int:
+        """The step's clock after the physics (the single env's step, and each world of a batch's): the references
+        just run become the previous ones (actuation latency), and the step count and time advance."""
+        self._theta_prev = self._theta
+        k = self._step = self._step + 1
+        self._t = k * self.ctrl_dt
+        return k
 
     def _record_step(self, err: np.ndarray) -> None:
         """The episode's record after a step's measures (the single env's step, and each world of a batch's): the

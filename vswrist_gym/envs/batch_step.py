@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from ..stiffness import SpringLaw, stored_energy
+from .base import episode_end
 from .observations import observe
 from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
 
@@ -117,10 +118,7 @@ class ArrayStepMixin:
         # time, the task's contact force; and what the arrays below need of each world's state
         contact, K, d0, T, lam, prev, nz_rows, steps = [], [], [], [], [], [], [], []
         for e in worlds:
-            e._theta_prev = e._theta
-            k = e._step + 1
-            e._step = k
-            e._t = k * dt
+            k = e._tick()
             steps.append(k)
             sp = e.params.spring
             K.append(sp.K)
@@ -173,10 +171,8 @@ class ArrayStepMixin:
         terminated = np.zeros(L, dtype=bool)
         terminated[list(failures)] = True
         PA = A.astype(np.float32)
-        time_up = ~terminated & (steps >= first.episode_steps)
-        exceeded = closure_a > first._closure_warn
-        cut = ~terminated & exceeded if first._closure_truncate else np.zeros(L, dtype=bool)
-        truncated = time_up | cut
+        time_up, cut, truncated = episode_end(terminated, steps, first.episode_steps, closure_a, first._closure_warn,
+                                              first._closure_truncate)
         ends = (terminated | truncated).tolist()
 
         # world by world: the state the single env keeps, the task's reward terms
