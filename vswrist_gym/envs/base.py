@@ -208,6 +208,8 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         bound = lambda b, t: np.broadcast_to(np.asarray(b, dtype=np.float32), (t.size,))  # noqa: E731
         self._obs_low = np.concatenate([bound(t.low, t) for t in self.obs_terms]).astype(np.float32)
         self._obs_high = np.concatenate([bound(t.high, t) for t in self.obs_terms]).astype(np.float32)
+        # what the float64 raw observation is clipped to: the float32 bounds' values, cast once, not at every step
+        self._obs_bounds = (self._obs_low.astype(np.float64), self._obs_high.astype(np.float64))
         if cfg["obs_mode"] == "flat":
             self.observation_space = spaces.Box(self._obs_low, self._obs_high, dtype=np.float32)
         else:

@@ -203,7 +203,7 @@ class ArrayStepMixin:
         # observation (the single env's terms, over arrays)
         t = steps * dt
         measures = BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, t, NZ)
-        obs = observe(first.obs_terms, measures, first._obs_low, first._obs_high)
+        obs = observe(first.obs_terms, measures, *first._obs_bounds)
 
         # info (the single env's metrics, over arrays)
         success = np.zeros(L, dtype=bool)

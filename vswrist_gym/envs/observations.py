@@ -55,7 +55,7 @@ def _touch(force, noise) -> np.ndarray:
     """A touch sensor's reading with its noise (column 12 of the draws), as the term's column (..., 1): it never
     reads a pull (negative values, NaN too, read 0)."""
     f = force if noise is None else force + noise[..., 12]
-    return np.where(f > 0.0, f, 0.0)[..., None]
+    return (np.fmax(f, 0.0) + 0.0)[..., None]  # fmax: NaN reads 0; + 0.0: so does -0.0
 
 
 _PAIRS = np.array([0, 0, 1]), np.array([0, 1, 1])  # J_a's columns in the products J0 J0, J0 J1, J1 J1
@@ -201,7 +201,7 @@ class ObservationsMixin:
 
     def _observation(self):
         self._draw_noise()
-        obs = observe(self.obs_terms, WorldMeasures(self), self._obs_low, self._obs_high)
+        obs = observe(self.obs_terms, WorldMeasures(self), *self._obs_bounds)
         if self.cfg["obs_mode"] == "dict":
             return {t.name: obs[self.obs_slices[t.name]].copy() for t in self.obs_terms}
         return obs
