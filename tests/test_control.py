@@ -202,14 +202,21 @@ def test_gravity_compensation_balances_the_weight_of_hand_and_coupler():
         hand = T[:3, 3] + p.inertia.hand_offset * T[:3, 0]
         return -(p.inertia.hand_mass * hand + p.inertia.coupler_mass * T[:3, 3]) @ g
 
+    for _ in _balanced_postures(ctrl, kin, V, p, seed=4):
+        pass
+
+
+def _balanced_postures(ctrl, kin, V, p, seed: int):
+    """Postures at which tau_g equals the finite difference of V_g and the springs' torques at lam = 0 balance it
+    through J_a^T; yields each posture after checking it."""
     h = 1e-6
-    for u in _postures(kin, 6, seed=4):
+    for u in _postures(kin, 6, seed=seed):
         dV = np.array([(V(u + e) - V(u - e)) / (2 * h) for e in (np.array([h, 0]), np.array([0, h]))])
         np.testing.assert_allclose(ctrl.gravity_torque(u), dV, atol=1e-7)
         theta = ctrl.step([u[0], u[1], 0.0], lam=0.0)
         q1, Ja, _ = ctrl.kinematics_at(u)
-        tau = spring_torque(q1 - theta[:3], p)
-        np.testing.assert_allclose(Ja.T @ tau, dV, atol=1e-7)
+        np.testing.assert_allclose(Ja.T @ spring_torque(q1 - theta[:3], p), dV, atol=1e-7)
+        yield u
 
 
 def test_gravity_compensation_holds_a_payload_on_the_ps_axis():
@@ -228,13 +235,7 @@ def test_gravity_compensation_holds_a_payload_on_the_ps_axis():
         points = [(p.inertia.hand_mass, p.inertia.hand_offset), (p.inertia.coupler_mass, 0.0), *payload]
         return -sum(m * (T[:3, 3] + x * T[:3, 0]) for m, x in points) @ g
 
-    h = 1e-6
-    for u in _postures(kin, 6, seed=5):
-        dV = np.array([(V(u + e) - V(u - e)) / (2 * h) for e in (np.array([h, 0]), np.array([0, h]))])
-        np.testing.assert_allclose(ctrl.gravity_torque(u), dV, atol=1e-7)
-        theta = ctrl.step([u[0], u[1], 0.0], lam=0.0)
-        q1, Ja, _ = ctrl.kinematics_at(u)
-        np.testing.assert_allclose(Ja.T @ spring_torque(q1 - theta[:3], p), dV, atol=1e-7)
+    for u in _balanced_postures(ctrl, kin, V, p, seed=5):
         assert np.array_equal(plain.step([u[0], u[1], 0.0], lam=0.3), empty.step([u[0], u[1], 0.0], lam=0.3))
     with pytest.raises(ValueError, match="payload"):
         AnalyticController(p, gravity_compensation=True, payload=((-0.1, 0.1),))
