@@ -110,6 +110,7 @@ ALLOWED_CONSTANT = {
     "VSWrist/Insertion-v0": {("target", 2), ("bottom_force", 0)},
     # the swing is in FE at PS = 0 (the head's face then meets the anvil squarely)
     "VSWrist/Hammer-v0": {("target", 2)},
+    "VSWrist/Hammer-v1": {("target", 2)},
     # the throw is in FE at PS = 0; the ball leaves the hand after about 0.2 s, beyond these rollouts
     "VSWrist/Throw-v0": {("target", 2), ("released", 0)},
 }

@@ -38,6 +38,41 @@ def test_swing_runs_the_fastest_motor_at_its_speed_limit():
     assert u._reference(t0 - 0.01)[1] == u.tp["fe_start"]
 
 
+def test_v1_winds_up_then_swings_with_the_fastest_motor_at_its_speed_limit():
+    """Hammer-v1's reference: from fe_start back to fe_back and forward through the anvil, the fastest leg's
+    angle (exact inverse kinematics, differentiated in time) at windup_speed x the speed limit going back and at
+    swing_speed x it going forward; the strike deadline counts from the turn, not from the wind-up's start."""
+    env = gym.make("VSWrist/Hammer-v1")
+    u = env.unwrapped
+    env.reset(seed=4)
+    tp = u.tp
+    assert tp["fe_back"] < tp["fe_start"] < tp["fe_strike"][0]
+    from vswrist_gym.kinematics import WristKinematics
+
+    kin = WristKinematics(u.nominal_params)
+    vmax = u.nominal_params.motor.speed_limit
+    t_turn = u._swing_t0
+    assert u._reference(t_turn)[1] == pytest.approx(tp["fe_back"], abs=1e-12)
+    assert tp["swing_start_s"] + 0.02 < t_turn  # the wind-up took time
+    h = 1e-4
+
+    def top_rate(t):
+        qa = kin.joint_angles(u._reference(t + h)[:2])[0::4]
+        qb = kin.joint_angles(u._reference(t - h)[:2])[0::4]
+        return np.max(np.abs(qa - qb)) / (2 * h)
+
+    back = [top_rate(t) for t in np.linspace(tp["swing_start_s"] + 0.01, t_turn - 0.01, 5)]
+    fwd = [top_rate(t) for t in np.linspace(t_turn + 0.01, t_turn + 0.08, 5)]
+    np.testing.assert_allclose(back, tp["windup_speed"] * vmax, rtol=0.01)
+    np.testing.assert_allclose(fwd, tp["swing_speed"] * vmax, rtol=0.01)
+    # FE falls through the wind-up and rises after the turn
+    assert u._reference(t_turn - 0.02)[1] < tp["fe_start"] and u._reference(t_turn + 0.02)[1] > tp["fe_back"]
+    u._strike = (t_turn + tp["strike_deadline_s"] - 1e-6, 1.0, 0.0)
+    assert u.timely()
+    u._strike = (t_turn + tp["strike_deadline_s"] + 1e-6, 1.0, 0.0)
+    assert not u.timely()
+
+
 def test_leg_rate_matches_finite_differences_of_the_inverse_kinematics():
     """The leg rate (the controller's closed-form J_a, FE column) = |d q1 / d FE| by central differences of the
     exact inverse kinematics (``WristKinematics.joint_angles``, least-squares-free; a second derivation). The

@@ -36,6 +36,7 @@ ENV_IDS = {
     "VSWrist/Drill-v1": "vswrist_gym.envs.drill:DrillEnv",
     "VSWrist/Drill-v2": "vswrist_gym.envs.drill:DrillEnv",
     "VSWrist/Hammer-v0": "vswrist_gym.envs.hammer:HammerEnv",
+    "VSWrist/Hammer-v1": "vswrist_gym.envs.hammer:HammerEnv",
     "VSWrist/Throw-v0": "vswrist_gym.envs.throw:ThrowEnv",
 }
 # What an older version fixes over its task's config files (``id_config`` of ``VSWristEnv``; the caller's config
@@ -55,6 +56,9 @@ ENV_KWARGS = {
     # the controller's gravity compensation without the PS flange and the tool (the hand and coupler only)
     "VSWrist/Drill-v1": {"id_config": {"compensate_tool": False}},
     "VSWrist/Impact-v0": {"id_config": {"compensate_tool": False}},
+    # the swing from rest near the extension limit (no wind-up), its best constant and success thresholds
+    "VSWrist/Hammer-v0": {"id_config": {"residual": {"stiffness_nominal": -0.5}, "task": {
+        "fe_start": -0.75, "fe_back": -0.75, "success_speed_ratio": 1.75, "success_radius": 0.015}}},
 }
 
 

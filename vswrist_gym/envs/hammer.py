@@ -76,6 +76,22 @@ def ramp_reference(fe0: float, fe1: float, rate_of, t_start: float, duration: fl
     return np.asarray(ts), np.asarray(fes)
 
 
+def ramp_through(points, rates_of, t_start: float, hold_s: float, duration: float, dt: float = 1e-3):
+    """Times (s) and FE (rad) of a reference through FE ``points[0] -> points[1] -> points[2]``: from ``t_start``
+    to ``points[1]`` at the FE rate ``rates_of[0](fe)``, ``hold_s`` there, then to ``points[2]`` at
+    ``rates_of[1](fe)`` (rad/s, > 0), held after; each leg integrated with the midpoint rule and step ``dt`` as
+    ``ramp_reference``."""
+    t1, f1 = ramp_reference(points[0], points[1], rates_of[0], t_start, duration, dt)
+    # t1[-1] is a hold point one dt past the end of the first leg (or of the episode): drop it
+    t_back = float(t1[-2])
+    t2, f2 = ramp_reference(points[1], points[2], rates_of[1], t_back + hold_s, max(duration, t_back + hold_s), dt)
+    # t2 starts with (0, fe_back): drop it; its next point is (t_back + hold_s, fe_back), the hold's end
+    ts = np.concatenate([t1[:-1], t2[1:]])
+    fes = np.concatenate([f1[:-1], f2[1:]])
+    keep = np.concatenate([[True], np.diff(ts) > 0.0])  # hold_s = 0: the turn's point appears twice
+    return ts[keep], fes[keep]
+
+
 def ramp_references(fe0: float, fe1: float, rates_of, n: int, t_start: float, duration: float,
                     dt: float = 1e-3) -> list:
     """``ramp_reference`` of ``n`` ramps at once whose FE rate is ``rates_of(fe, rows)`` ((k,) FE of the ramps
@@ -108,10 +124,20 @@ def ramp_references(fe0: float, fe1: float, rates_of, n: int, t_start: float, du
 
 class HammerEnv(PeriodMeanForce, VSWristEnv):
     task = "hammer"
-    task_id = "VSWrist/Hammer-v0"
+
+    @property
+    def windup(self) -> bool:
+        """Whether the swing starts with a wind-up (``fe_back`` < ``fe_start``)."""
+        return self.tp["fe_back"] < self.tp["fe_start"]
+
+    @property
+    def task_id(self) -> str:
+        """v1 winds up before the swing (a counter-movement, ``fe_back``); v0 swings from rest."""
+        return "VSWrist/Hammer-v1" if self.windup else "VSWrist/Hammer-v0"
+
     summary = ("swing a hammer (random head mass and handle length) through a fixed, motor-speed-limited FE "
-               "motion and strike an anvil as fast as possible")
-    success_text = ("a strike within {strike_deadline_s:g} s of the swing's start, at a normal speed "
+               "motion (v1: after a wind-up) and strike an anvil as fast as possible")
+    success_text = ("a strike within {strike_deadline_s:g} s of the forward swing's start, at a normal speed "
                     ">= {success_speed_ratio:g} x the rigid bound (motor speed limit x lever), on the nail (the "
                     "first contact within {success_radius:g} m of where the nominal swing meets the anvil), RUD and "
                     "PS within {success_plane_error:g} rad of the swing's until then")
@@ -123,9 +149,12 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         "head_radius": ("number", 0.003, 0.05),
         "rud_range": ("interval", -0.8, 0.8),
         "fe_start": ("number", -0.78, 0.95),
+        "fe_back": ("number", -0.78, 0.95),
         "fe_strike": ("interval", -0.78, 0.95),
         "fe_end": ("number", -0.78, 0.95),
         "swing_start_s": ("number", 0.0, 600.0),
+        "windup_speed": ("number", 0.01, 1.0),
+        "windup_hold_s": ("number", 0.0, 10.0),
         "swing_speed": ("number", 0.01, 1.0),
         "strike_deadline_s": ("number", 0.0, 600.0),
         "success_speed_ratio": ("number", 0.0, 100.0),
@@ -142,6 +171,9 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
             raise EnvConfigError(f"'task.fe_start' < 'task.fe_strike' < 'task.fe_end' is required (the swing "
                                  f"passes the anvil), got {tp['fe_start']:g}, {list(tp['fe_strike'])}, "
                                  f"{tp['fe_end']:g}")
+        if tp["fe_back"] > tp["fe_start"]:
+            raise EnvConfigError(f"'task.fe_back' <= 'task.fe_start' is required (the wind-up turns back in "
+                                 f"extension; equal: no wind-up), got {tp['fe_back']:g} > {tp['fe_start']:g}")
 
     # ------------------------------------------------------------------ scene
     def _scene(self, spec) -> None:
@@ -203,6 +235,18 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         cls._strike_geometry(worlds)
         first = worlds[0]
         tp = first.tp
+        if first.windup:
+            for e in worlds:
+                back = lambda fe, e=e: e._fe_rate(fe, tp["windup_speed"])  # noqa: E731
+                e._swing_t, e._swing_fe = ramp_through((tp["fe_start"], tp["fe_back"], tp["fe_end"]),
+                                                       (back, e._fe_rate), tp["swing_start_s"],
+                                                       tp["windup_hold_s"], e.cfg["episode_s"])
+                # the forward swing starts where the reference leaves fe_back
+                at_back = np.flatnonzero(e._swing_fe <= tp["fe_back"])
+                e._swing_t0 = float(e._swing_t[at_back[-1]]) if at_back.size else math.inf
+            return
+        for e in worlds:
+            e._swing_t0 = tp["swing_start_s"]
         args = (tp["fe_start"], tp["fe_end"])
         if len(worlds) < RAMP_ARRAY_MIN_WORLDS:
             for e in worlds:
@@ -220,9 +264,11 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         for e, (ts, fes) in zip(worlds, ramps):
             e._swing_t, e._swing_fe = ts, fes
 
-    def _fe_rate(self, fe: float) -> float:
-        """FE rate (rad/s) at which the fastest-turning PM motor runs at ``swing_speed`` x its speed limit."""
-        return self.tp["swing_speed"] * self.nominal_params.motor.speed_limit / self._leg_rate(fe)
+    def _fe_rate(self, fe: float, fraction: float | None = None) -> float:
+        """FE rate (rad/s) at which the fastest-turning PM motor runs at ``fraction`` (default ``swing_speed``)
+        x its speed limit."""
+        f = self.tp["swing_speed"] if fraction is None else fraction
+        return f * self.nominal_params.motor.speed_limit / self._leg_rate(fe)
 
     def _leg_rate(self, fe: float) -> float:
         """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid). The
@@ -295,9 +341,8 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
 
     # ------------------------------------------------------------------ reward and success
     def timely(self) -> bool:
-        """Whether the head has struck the anvil, by the deadline after the swing began."""
-        return self._strike is not None and \
-            self._strike[0] <= self.tp["swing_start_s"] + self.tp["strike_deadline_s"]
+        """Whether the head has struck the anvil, by the deadline after the forward swing began."""
+        return self._strike is not None and self._strike[0] <= self._swing_t0 + self.tp["strike_deadline_s"]
 
     def _task_reward_terms(self, err) -> dict:
         if not self._paid:  # until the strike: how far RUD and PS left the swing's plane

@@ -49,6 +49,7 @@ import mujoco
 import numpy as np
 
 from .base import VSWristEnv
+from .hammer import ramp_through
 
 NOMINAL_BALL_MASS = 0.15   # kg, compiled in the model; each episode sets its own mass in place
 HANDLE_START = 0.02        # m, the handle starts this far from the hand along the tool X axis
@@ -56,24 +57,6 @@ HANDLE_START = 0.02        # m, the handle starts this far from the hand along t
 # (25 m/s for 10 ms, about three times the fastest throws) and runs as one mj_step call
 RELEASE_REACH = 0.25
 MASS_GONE = 1e-9           # kg: the ball's mass once it has left the hand (MuJoCo keeps the massless body welded)
-
-
-def ramp_through(points, rates_of, t_start: float, hold_s: float, duration: float, dt: float = 1e-3):
-    """Times (s) and FE (rad) of a reference through FE ``points[0] -> points[1] -> points[2]``: from ``t_start``
-    to ``points[1]`` at the FE rate ``rates_of[0](fe)``, ``hold_s`` there, then to ``points[2]`` at
-    ``rates_of[1](fe)`` (rad/s, > 0), held after; each leg integrated with the midpoint rule and step ``dt`` as
-    ``hammer.ramp_reference``."""
-    from .hammer import ramp_reference
-
-    t1, f1 = ramp_reference(points[0], points[1], rates_of[0], t_start, duration, dt)
-    # t1[-1] is a hold point one dt past the end of the first leg (or of the episode): drop it
-    t_back = float(t1[-2])
-    t2, f2 = ramp_reference(points[1], points[2], rates_of[1], t_back + hold_s, max(duration, t_back + hold_s), dt)
-    # t2 starts with (0, fe_back): drop it; its next point is (t_back + hold_s, fe_back), the hold's end
-    ts = np.concatenate([t1[:-1], t2[1:]])
-    fes = np.concatenate([f1[:-1], f2[1:]])
-    keep = np.concatenate([[True], np.diff(ts) > 0.0])  # hold_s = 0: the turn's point appears twice
-    return ts[keep], fes[keep]
 
 
 class ThrowEnv(VSWristEnv):

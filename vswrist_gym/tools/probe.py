@@ -101,10 +101,10 @@ def adaptive_policy(env):
             gain = POLISH_GAIN / tp["force_tolerance"]
             state["s"] = float(np.clip(state["s"] + gain * (goal - contact), -1.0, 1.0))
             s = state["s"]
-        elif task == "hammer":
+        elif task == "hammer" and not u.windup:
             state["go"] = state.get("go", False) or u._t >= u.tp["swing_start_s"] - 1e-9
             return u.reference_to_action(target, 1.0 if state["go"] else HAMMER_SOFT)
-        elif task == "throw":
+        elif task in ("throw", "hammer"):  # Throw, and Hammer with a wind-up
             # the reference has turned forward: its FE grew since the last step
             prev = state.get("fe")
             state["go"] = state.get("go", False) or (prev is not None and target[1] > prev + 1e-9)
@@ -161,10 +161,15 @@ def oracle_policy(env):
     return act
 
 
+def _turns(u) -> bool:
+    """Whether the task's reference winds up and turns (Throw, Hammer-v1): its schedules start from the turn."""
+    return u.task == "throw" or (u.task == "hammer" and u.windup)
+
+
 def schedule_knots(u) -> np.ndarray:
     """The times (s, episode time) of the open-loop schedule's knots: ``HAMMER_KNOTS`` after Hammer's swing
     start (``task.swing_start_s``), ``THROW_KNOTS`` after Throw's turn (the reference leaves ``task.fe_back``)."""
-    if u.task == "throw":
+    if _turns(u):
         return np.asarray(THROW_KNOTS) + u._swing_t0
     return np.asarray(HAMMER_KNOTS) + u.tp["swing_start_s"]
 
@@ -193,7 +198,7 @@ def optimised_schedule(env_id: str, config: dict | None = None, train_seeds: int
         return _SCHEDULES[key]
     env = gym.make(env_id, config=dict(config or {}))
     seeds = range(TRAIN_SEED0, TRAIN_SEED0 + train_seeds)
-    n = len(THROW_KNOTS if env.unwrapped.task == "throw" else HAMMER_KNOTS)
+    n = len(THROW_KNOTS if _turns(env.unwrapped) else HAMMER_KNOTS)
 
     def loss(x):
         return -evaluate(env, lambda: schedule_policy(env, x), seeds)[0]
@@ -434,7 +439,7 @@ def trim_policy(env, levels):
     FE residual ``levels[0]`` before the schedule's origin (``schedule_knots``' zero: Hammer's swing start, Throw's
     turn), ``levels[1]`` for ``TRIM_S`` from it, ``levels[2]`` after."""
     u = env.unwrapped
-    origin = (THROW_KNOTS if u.task == "throw" else HAMMER_KNOTS)[0]
+    origin = (THROW_KNOTS if _turns(u) else HAMMER_KNOTS)[0]
 
     def act(obs):
         t0 = float(schedule_knots(u)[0]) - origin  # the episode's (made at its reset, after this factory ran)
