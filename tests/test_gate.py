@@ -114,7 +114,7 @@ def test_necessity_needs_headroom_and_two_seeds():
     assert gate.necessity_passes(gate.share_interval([-5.0, -4.0, -6.0], 10.0))
 
 
-def _doc(rule_gain: float, ppo_gains, noise: float = 1.0) -> dict:
+def _doc(rule_gain: float, ppo_gains, noise: float = 1.0, feedback_gain: float = 0.0) -> dict:
     """A result document with 100 synthetic held-out episodes."""
     rng = np.random.default_rng(0)
     const = list(rng.normal(-100.0, 20.0, 100))
@@ -126,6 +126,8 @@ def _doc(rule_gain: float, ppo_gains, noise: float = 1.0) -> dict:
     doc["necessity"] = {"seeds": [0, 1, 2], "runs": {str(k): {"returns": [c + g for c in const]}
                                                      for k, g in enumerate(ppo_gains)}}
     doc["necessity"]["summary"] = gate.necessity_summary(doc)
+    fb = [c + feedback_gain + noise * e for c, e in zip(const, rng.standard_normal(100))]
+    doc["feedback"] = {"k": 2.0, "returns": fb, **gate.feedback_verdict(gate.paired(fb, const), d["mean"])}
     return doc
 
 
@@ -140,6 +142,18 @@ def test_gate_verdicts_on_synthetic_results():
     assert not flat["headroom"]["passes"] and gate.gate_row(flat).endswith("| fail |")
     partial = _doc(10.0, [1.0])               # one training seed of three: no verdict yet
     assert not partial["necessity"]["summary"]["complete"] and gate.gate_row(partial).endswith("| pending |")
+    # the learner finds no posture substitute, a hand-written posture feedback recovers 80 % of the headroom
+    fed = _doc(10.0, [1.0, 2.0, 3.0], feedback_gain=8.0)
+    assert fed["necessity"]["summary"]["passes"] and not fed["feedback"]["passes"] and not gate.passes(fed)
+    assert gate.gate_row(fed).endswith("| fail |")
+    assert gate.passes(good)
+    # the feedback's share interval: gain 4 +- 1.96 s.e. (0.1 for noise 1 over 100 episodes) over a headroom of 10
+    near = _doc(10.0, [1.0, 2.0, 3.0], feedback_gain=4.0)
+    sh, g, h = near["feedback"]["share"], near["feedback"]["gain"], near["headroom"]["rule_minus_constant"]["mean"]
+    assert sh["high"] == pytest.approx((g["mean"] + 1.959964 * g["se"]) / h, rel=1e-6) and near["feedback"]["passes"]
+    unmeasured = _doc(10.0, [1.0, 2.0, 3.0])
+    del unmeasured["feedback"]
+    assert gate.gate_row(unmeasured).endswith("| pending |") and not gate.passes(unmeasured)
 
 
 def test_a_result_made_under_another_protocol_is_refused(tmp_path):
@@ -195,6 +209,13 @@ def test_headroom_path_smoke():
     d = np.subtract(hr["returns"]["rule"], best)
     assert hr["rule_minus_constant"]["mean"] == pytest.approx(d.mean())
     assert hr["passes"] == (d.mean() > 0 and d.mean() >= 5 * abs(d[0] - d[1]) / 2)  # s.e. of 2 values: |d0-d1|/2
+    fb = gate.feedback("VSWrist/LoadHold-v0", sel, best, hr["rule_minus_constant"]["mean"], gains=(0.0, 2.0),
+                       tuning=TUNING_EVAL_SEEDS[:1], heldout=HELDOUT_EVAL_SEEDS[:1], episodes=2,
+                       runner=lambda env_id, make, seeds, episodes, kw: gate.episode_returns(
+                           env_id, make, seeds, episodes, {**kw, "config": {**kw["config"], **short}}))
+    assert fb["k"] in (0.0, 2.0) and len(fb["returns"]) == 2
+    if fb["k"] == 0.0:  # no trim: the constant's episodes again (the zero residual is the reference agent)
+        assert fb["returns"] == pytest.approx(best, abs=0.05)
 
 
 # ------------------------------------------------------------------------------------------------ v1 tasks

@@ -4,7 +4,7 @@
 that ``experiments/leaderboard/NOTES.md`` fixes before any result:
 
 * **Tasks**: by default the headline suite, the ids whose validity gate (``vswrist gate``,
-  ``experiments/gate/<Task>-vN.json``) passes both headroom and necessity. The gate's selection (on tuning
+  ``experiments/gate/<Task>-vN.json``) passes it (headroom, necessity, posture feedback). The gate's selection (on tuning
   episodes) gives each task its best constant stiffness; its headroom (the selected rule minus that constant on
   the 100 held-out episodes) is the unit of the normalised score.
 * **Tracks** (``TRACKS``), all from the algorithm's packaged entry of the task (``configs/<algo>.yaml``) in the
@@ -45,7 +45,7 @@ import numpy as np
 
 from vswrist_gym.agents.protocol import BENCHMARK_TRAIN_SEEDS, HELDOUT_EVAL_SEEDS, mean_ci, reset_seed
 from vswrist_gym.tools.gate import (EPISODES_PER_SEED, POSTURE_SCALE, GateError, check_heldout_seeds, packaged_entry,
-                                    paired, publish, result_path)
+                                    paired, passes, publish, result_path)
 
 TRACKS = ("stiffness", "full", "posture")
 ALGOS = ("ppo", "sac")
@@ -246,8 +246,7 @@ def gate_block(env_id: str, gate_dir: Path) -> dict:
     if not path.is_file():
         raise BenchmarkError(f"no gate result for {env_id} in {gate_dir}: run `vswrist gate --tasks {env_id}` first")
     doc = json.loads(path.read_text())
-    nec = (doc.get("necessity") or {}).get("summary") or {}
-    if not (doc.get("headroom", {}).get("passes") and nec.get("passes")):
+    if not passes(doc):
         raise BenchmarkError(f"{env_id} does not pass the validity gate ({path}); the leaderboard holds the tasks "
                              "that pass it")
     best = doc["selection"]["best_constant"]
@@ -369,7 +368,7 @@ def leaderboard(docs: list[dict], reps: int = BOOTSTRAP_REPS) -> str:
 
 
 def headline_tasks(gate_dir: Path) -> list[str]:
-    """The ids whose gate result in ``gate_dir`` passes headroom and necessity, in the registry's order."""
+    """The ids whose gate result in ``gate_dir`` passes (``gate.passes``), in the registry's order."""
     import gymnasium as gym
 
     import vswrist_gym  # noqa: F401

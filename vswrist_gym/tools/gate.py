@@ -1,6 +1,6 @@
 """The validity gate: does a task need a variable stiffness? Headroom and necessity under the benchmark protocol.
 
-``vswrist gate [--tasks ...] [--stage headroom|necessity|all] [--write docs/environments.md]`` measures, per task:
+``vswrist gate [--tasks ...] [--stage headroom|necessity|feedback|all] [--write docs/environments.md]`` measures, per task:
 
 * **Selection, on tuning episodes only** (``TUNING_EVAL_SEEDS`` x ``EPISODES_PER_SEED``, ``protocol.reset_seed``):
   the best constant stiffness command among ``probe.CONSTANT_COMMANDS`` (the reference agent at that command), and
@@ -16,7 +16,14 @@
   over the training seeds. It passes when the interval's upper end is below ``NECESSITY_SHARE``: a posture trim
   cannot stand in for the stiffness.
 
-A task passes the gate when both pass. Each task's results go to ``OUT/<Task>-vN.json`` as they come (selection,
+* **Posture feedback, the same held-out episodes**: a hand-written posture-only agent at the selected constant
+  (``IntegralTrim``: an integral trim of the posture reference on the measured RUD/FE error, switched on with the
+  task's cue where it has one), its rate chosen among ``FEEDBACK_GAINS`` on the tuning episodes; its paired gain
+  over the constant as a share of the headroom, with a normal 95 % interval from the paired standard error. It
+  passes when the interval's upper end is below ``NECESSITY_SHARE``: a learner that fails to find a posture
+  substitute is not taken as proof that none exists.
+
+A task passes the gate when all three pass. Each task's results go to ``OUT/<Task>-vN.json`` as they come (selection,
 headroom, every training seed), so a stopped run resumes where it stopped; the trained runs go to
 ``RUNS_DIR/<Task>-vN/seed<k>`` (a half-trained run resumes from its checkpoint). ``--write`` rebuilds the
 ``gate`` block of docs/environments.md from the JSON files, computing nothing that is missing.
@@ -48,6 +55,7 @@ NECESSITY_SEEDS = BENCHMARK_TRAIN_SEEDS[:3]   # training seeds of the posture-on
 BUDGET = 80_000               # env steps per posture-only PPO run: the packaged entries' n_timesteps
 POSTURE_SCALE = 0.15          # rad: the posture residual of the packaged full-track entries (configs/ppo.yaml)
 LEVEL = 0.95                  # confidence level of the share's interval
+FEEDBACK_GAINS = (0.0, 2.0, 5.0, 10.0, 20.0)   # 1/s: the posture feedback's trim rate per rad of error
 
 
 class GateError(ValueError):
@@ -150,6 +158,77 @@ def cue_policy(env):
         s = 1.0 if obs[cue][0] > 0.5 else -1.0
         return u.reference_to_action(obs[target], _slew(state, s, u.ctrl_dt))
     return act
+
+
+class IntegralTrim:
+    """A posture-only agent in the gate's residual mode (stiffness held at the constant, posture residual
+    ``POSTURE_SCALE`` rad): trim <- trim - k ctrl_dt (posture - target) on RUD and FE, clipped to the residual's
+    range, on from the task's cue (``CUE_TERMS``) or from the start where there is none. What a posture feedback
+    can do without learning: the simplest substitute for a stiffness against a slow or static load."""
+
+    def __init__(self, env, k: float):
+        u = env.unwrapped
+        self.k, self.dt, self.sl = float(k), u.ctrl_dt, u.obs_slices
+        self.cue = next((self.sl[n] for n in CUE_TERMS if n in self.sl), None)
+        self.trim = np.zeros(2)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        obs = np.asarray(obs, dtype=float)
+        if episode_start is not None and bool(np.asarray(episode_start).reshape(-1)[0]):
+            self.trim = np.zeros(2)
+        if self.cue is None or obs[self.cue][0] > 0.5:
+            err = obs[self.sl["posture"]][:2] - obs[self.sl["target"]][:2]
+            self.trim = np.clip(self.trim - self.k * self.dt * err, -POSTURE_SCALE, POSTURE_SCALE)
+        return np.array([self.trim[0] / POSTURE_SCALE, self.trim[1] / POSTURE_SCALE, 0.0, 0.0],
+                        dtype=np.float32), None
+
+
+def feedback_kwargs(best_constant: float) -> dict:
+    """The residual mode of the posture feedback: the stiffness held at the constant, the posture residual."""
+    return {"config": {"action_mode": "residual", "residual": {
+        "posture_scale": POSTURE_SCALE, "stiffness_scale": 0.0, "stiffness_nominal": float(best_constant)}}}
+
+
+def feedback(env_id: str, selection: dict, constant_heldout, headroom_mean: float, gains=FEEDBACK_GAINS,
+             tuning=TUNING_EVAL_SEEDS, heldout=HELDOUT_EVAL_SEEDS, episodes: int = EPISODES_PER_SEED,
+             runner=None) -> dict:
+    """The posture feedback's rate chosen on tuning episodes (paired against the constant there), then its gain
+    over the constant on the held-out episodes (``constant_heldout``: the constant's returns there, in order) and
+    its share of the headroom with a normal interval from the paired standard error."""
+    tuning, heldout = check_tuning_seeds(tuning), check_heldout_seeds(heldout)
+    runner = runner or episode_returns
+    c = selection["best_constant"]
+    kw = feedback_kwargs(c)
+    const_t = runner(env_id, constant_agent(c), tuning, episodes, {"config": {}})
+    on_tuning = {g: paired(runner(env_id, lambda env, g=g: IntegralTrim(env, g), tuning, episodes, kw),
+                           const_t)["mean"] for g in gains}
+    k = max(on_tuning, key=on_tuning.get)   # first of equals, in gains order
+    returns = runner(env_id, lambda env: IntegralTrim(env, k), heldout, episodes, kw)
+    return {"gains": list(gains), "tuning_gain": {f"{g:g}": m for g, m in on_tuning.items()}, "k": float(k),
+            "returns": returns, **feedback_verdict(paired(returns, constant_heldout), headroom_mean)}
+
+
+def feedback_verdict(gain: dict, headroom_mean: float, level: float = LEVEL) -> dict:
+    """The posture feedback's paired gain (``paired``) as a share of the headroom, with the normal interval of the
+    gain's mean divided by the headroom; it passes when the upper end is below ``NECESSITY_SHARE``."""
+    from scipy.stats import norm
+
+    z = float(norm.ppf(0.5 + level / 2))
+    if headroom_mean > 0.0:
+        share = {"mean": gain["mean"] / headroom_mean, "low": (gain["mean"] - z * gain["se"]) / headroom_mean,
+                 "high": (gain["mean"] + z * gain["se"]) / headroom_mean}
+    else:
+        share = {"mean": math.nan, "low": math.nan, "high": math.nan}
+    return {"gain": gain, "share": share,
+            "passes": bool(not math.isnan(share["high"]) and share["high"] < NECESSITY_SHARE)}
+
+
+def passes(doc: dict) -> bool:
+    """Whether a task's gate result passes: headroom, the posture-only learner's necessity and the posture
+    feedback's."""
+    nec = (doc.get("necessity") or {}).get("summary") or {}
+    return bool(doc.get("headroom", {}).get("passes") and nec.get("passes") and
+                (doc.get("feedback") or {}).get("passes"))
 
 
 def rule_agent(levels: tuple[float, float]):
@@ -358,6 +437,21 @@ def run_task(env_id: str, out: Path, runs_dir: Path, stage: str = "all", budget:
         f"{'passes' if doc['headroom']['passes'] else 'fails'}")
     if stage == "headroom":
         return doc
+    if "feedback" not in doc:
+        t0 = time.time()
+        hr = doc["headroom"]
+        doc["feedback"] = feedback(env_id, doc["selection"],
+                                   hr["returns"]["constant"][f"{doc['selection']['best_constant']:+.1f}"],
+                                   hr["rule_minus_constant"]["mean"])
+        _stamp(doc, "feedback")
+        _save(path, doc)
+        log(f"{env_id}: posture feedback chosen k = {doc['feedback']['k']:g}/s ({time.time() - t0:.0f} s)")
+    fb = doc["feedback"]
+    log(f"{env_id}: posture feedback {fb['gain']['mean']:+.2f} (s.e. {fb['gain']['se']:.2f}) over the constant, "
+        f"share {fb['share']['mean']:+.2f} [{fb['share']['low']:+.2f}, {fb['share']['high']:+.2f}]: "
+        f"{'passes' if fb['passes'] else 'fails'}")
+    if stage == "feedback":
+        return doc
     nec = doc.setdefault("necessity", {"seeds": list(proto["necessity_seeds"]), "budget": int(budget), "runs": {}})
     for s in proto["necessity_seeds"]:
         if str(s) in nec["runs"]:
@@ -383,15 +477,17 @@ def run_task(env_id: str, out: Path, runs_dir: Path, stage: str = "all", budget:
 
 
 GATE_HEADER = ("| task | best constant | rule levels (soft, stiff) | constant return | rule - constant (s.e.) "
-               "| z | headroom | posture-only PPO gain per seed | share of headroom [95 %] | necessity | gate |\n"
-               "|---|---|---|---|---|---|---|---|---|---|---|")
+               "| z | headroom | posture-only PPO gain per seed | share of headroom [95 %] | necessity "
+               "| posture feedback: rate, gain (s.e.) | its share [95 %] | feedback | gate |\n"
+               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def gate_row(doc: dict) -> str:
     sel, hr = doc["selection"], doc.get("headroom")
     name = f"`{doc['task']}`"
     if hr is None:
-        return f"| {name} | s = {sel['best_constant']:+.1f} | {sel['rule_levels']} | | | | not measured | | | | |"
+        return (f"| {name} | s = {sel['best_constant']:+.1f} | {sel['rule_levels']} | | | | not measured "
+                f"| | | | | | | |")
     d = hr["rule_minus_constant"]
     const = float(np.mean(hr["returns"]["constant"][f"{sel['best_constant']:+.1f}"]))
     lo, hi = sel["rule_levels"]
@@ -407,10 +503,18 @@ def gate_row(doc: dict) -> str:
             f"{sh['mean']:+.2f} [{sh['low']:+.2f}, {sh['high']:+.2f}]"
         verdict = "**pass**" if summary["passes"] else ("incomplete" if not summary["complete"] else "fail")
         cells += [gains, share, verdict]
-    if not hr["passes"] or (summary is not None and summary["complete"] and not summary["passes"]):
-        gate = "fail"
+    fb = doc.get("feedback")
+    if fb is None:
+        cells += ["", "", "not measured"]
     else:
-        gate = "**pass**" if summary is not None and summary["passes"] else "pending"
+        sh = fb["share"]
+        cells += [f"{fb['k']:g}/s, {fb['gain']['mean']:+.1f} ({fb['gain']['se']:.1f})",
+                  "n/a (no headroom)" if math.isnan(sh["mean"]) else
+                  f"{sh['mean']:+.2f} [{sh['low']:+.2f}, {sh['high']:+.2f}]",
+                  "**pass**" if fb["passes"] else "fail"]
+    failed = (not hr["passes"] or (summary is not None and summary["complete"] and not summary["passes"])
+              or (fb is not None and not fb["passes"]))
+    gate = "fail" if failed else ("**pass**" if passes(doc) else "pending")
     cells.append(gate)
     return "| " + " | ".join(cells) + " |"
 
@@ -438,8 +542,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="vswrist gate", description=__doc__.split("\n\n")[0])
     ap.add_argument("--tasks", nargs="+", default=list(TASKS), type=resolve_id,
                     help=f"short names (the newest version) or full ids (default: {' '.join(TASKS)})")
-    ap.add_argument("--stage", choices=("headroom", "necessity", "all"), default="all",
-                    help="headroom: selection and headroom only; necessity and all: also the posture-only PPO runs")
+    ap.add_argument("--stage", choices=("headroom", "feedback", "necessity", "all"), default="all",
+                    help="headroom: selection and headroom only; feedback: also the posture feedback; necessity "
+                         "and all: also the posture-only PPO runs")
     ap.add_argument("--out", default="experiments/gate", help="folder of the per-task JSON results")
     ap.add_argument("--runs-dir", default="runs/gate", help="folder of the posture-only PPO runs (git-ignored)")
     ap.add_argument("--budget", type=int, default=BUDGET, help="env steps per posture-only PPO run")
