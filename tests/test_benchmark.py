@@ -163,9 +163,14 @@ def test_headline_tasks_are_the_ids_that_pass_the_gate():
     expected = []
     for path in sorted(GATE_DIR.glob("*.json")):
         doc = json.loads(path.read_text())
-        if doc.get("headroom") and doc.get("necessity") and doc["headroom"]["rule_minus_constant"]["mean"] >= \
-                gate.HEADROOM_SE * doc["headroom"]["rule_minus_constant"]["se"] and \
-                gate.necessity_summary(doc)["passes"]:
+        if not (doc.get("headroom") and doc.get("necessity") and doc.get("feedback")):
+            continue
+        hr = doc["headroom"]["rule_minus_constant"]
+        const = doc["headroom"]["returns"]["constant"][f"{doc['selection']['best_constant']:+.1f}"]
+        fb = gate.paired(doc["feedback"]["returns"], const)
+        # the feedback's share: its mean gain + 1.96 s.e., over the headroom, below 0.5
+        if hr["mean"] >= gate.HEADROOM_SE * hr["se"] and gate.necessity_summary(doc)["passes"] and \
+                (fb["mean"] + 1.959964 * fb["se"]) / hr["mean"] < gate.NECESSITY_SHARE:
             expected.append(doc["task"])
     assert "VSWrist/Throw-v0" in expected
     assert sorted(benchmark.headline_tasks(GATE_DIR)) == sorted(expected)
