@@ -39,6 +39,7 @@ from ..params import load_params
 from ..stiffness import stored_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
 from .config import EnvConfigError, load_env_config, merge, validate_task
+from .ending import restart_failed, step_failures
 from .observations import ObservationsMixin
 from .randomization import RandomizationMixin
 from .rewards import COMMON_REWARD_TERMS, RewardsMixin, wrap_angle
@@ -382,17 +383,13 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         a, failure = self._a, self._failure
         self._tick()
         self._measure()
-        if failure is None and not all(x - x == 0.0 for x in self._posture_list + self._defl_list):  # finite?
-            failure = f"non-finite state at t = {self._t:.3f} s"
-        # the physics' validity: measured before a failure resets the simulator (MuJoCo has then already reset
-        # its state, so the opening is unknown: inf)
-        self._closure = self.sim.loop_closure_peak() if failure is None else math.inf
-        if failure is not None:
-            # the physics diverged (MuJoCo resets its state when it does): end the episode with the
-            # termination penalty, from a clean, finite state so that the last observation is valid
-            self.sim.reset()
-            self.sim.apply_wrench(np.zeros(3), np.zeros(3))
-            self._measure()
+        failures = step_failures([failure], self._posture[None], self._defl[None], [self._t])
+        # the physics' validity, read only where the physics did not fail (MuJoCo reset a diverged state, so its
+        # opening is not there to read: ``restart_failed`` makes it inf)
+        closure = [math.inf if failures else self.sim.loop_closure_peak()]
+        restart_failed([self], failures, closure)
+        self._closure = closure[0]
+        failure = failures.get(0)
         self._target = self._references[self._step]
         err = wrap_angle(self._posture - self._target)
         self._record_step(err)

@@ -20,12 +20,11 @@ env's operations in its order, so world i of a batch is the single env with seed
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..stiffness import SpringLaw, stored_energy
 from .base import episode_end
+from .ending import restart_failed, step_failures
 from .observations import observe
 from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
 
@@ -143,21 +142,15 @@ class ArrayStepMixin:
         elif redo:
             G[redo] = bsim.gather([sims[k] for k in redo])
         P, D, Q = bsim.read_posture(G)
-        bad = ~(np.isfinite(P).all(axis=1) & np.isfinite(D).all(axis=1))
-        failures: dict[int, str] = {k: failed[k] for k in range(L) if failed[k] is not None}
-        for k in np.flatnonzero(bad).tolist():
-            if k not in failures:
-                failures[k] = f"non-finite state at t = {worlds[k]._t:.3f} s"
+        steps = np.array(steps)
+        t = steps * dt  # each world's time, as its ``_tick`` computed it
+        failures = step_failures(failed, P, D, t)
         closure = bsim.read_closure(G, sims)
-        for k in failures:
-            # as the single env: end the episode from a clean, finite state (MuJoCo reset the diverged one)
+        restart_failed(worlds, failures, closure)
+        for k in failures:  # what the restarted worlds' observations read: their clean state
             e = worlds[k]
-            closure[k] = math.inf
-            e.sim.reset()
-            e.sim.apply_wrench(np.zeros(3), np.zeros(3))
-            e._measure()
             P[k], D[k], contact[k] = e._posture, e._defl, e._contact
-            G[k] = bsim.gather([e.sim])[0]  # what the observation reads: the clean state
+            G[k] = bsim.gather([e.sim])[0]
             Q[k] = bsim.qpos(G[k:k + 1])[0]
         law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
         energy = stored_energy(D, law)
@@ -165,7 +158,6 @@ class ArrayStepMixin:
         err = wrap_angle(P - T)
         contact_a = np.array(contact)
         closure_a = np.array(closure)
-        steps = np.array(steps)
         lam = np.array(lam)
         prev = np.array(prev)
         terminated = np.zeros(L, dtype=bool)
@@ -201,7 +193,6 @@ class ArrayStepMixin:
         cols, reward = weigh(rterms, first.reward_weights)
 
         # observation (the single env's terms, over arrays)
-        t = steps * dt
         measures = BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, t, NZ)
         obs = observe(first.obs_terms, measures, *first._obs_bounds)
 

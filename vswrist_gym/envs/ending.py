@@ -1,0 +1,41 @@
+"""How a step's physics fails, and what the environment does then, over arrays of worlds: the single env
+(``base.VSWristEnv._finish_step``) calls these with its one world, the batch (``batch_step``) with its live worlds.
+
+A world's physics failed when its simulator reported a divergence (MuJoCo found the state unstable and reset it:
+``WristSim.step`` raised ``SimulationError``) or its measured posture or spring deflections are not finite. Its
+episode then ends (terminated, with the termination penalty) from a clean, finite state, so that the last
+observation is valid; the period's loop-closure opening is unknown (inf).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def step_failures(failed: list, posture: np.ndarray, deflections: np.ndarray, t: list) -> dict[int, str]:
+    """{world: why its physics failed this step} of N worlds: ``failed`` (N,) the simulators' reports (a message,
+    or None), else ``posture`` (N, 3) or ``deflections`` (N, 3) not finite (``t`` (N,): the worlds' times, s, for
+    the message). The simulators' reports come first, in world order."""
+    failures = {k: msg for k, msg in enumerate(failed) if msg is not None}
+    # the usual step, where every number is finite, costs two whole-array tests; the worlds are told apart only
+    # when one of them fails
+    if not (np.isfinite(posture).all() and np.isfinite(deflections).all()):
+        bad = ~(np.isfinite(posture).all(axis=1) & np.isfinite(deflections).all(axis=1))
+        for k in np.flatnonzero(bad).tolist():
+            if k not in failures:
+                failures[k] = f"non-finite state at t = {t[k]:.3f} s"
+    return failures
+
+
+def restart_failed(worlds: list, failures: dict, closure: list) -> None:
+    """The worlds ``failures`` names (indices into ``worlds``) restart from the simulator's initial state, with
+    no wrench, and are measured again (``_measure``); their loop-closure opening (``closure[k]``) becomes inf:
+    MuJoCo already reset the diverged state, so the opening it reached is unknown."""
+    for k in failures:
+        closure[k] = math.inf
+        e = worlds[k]
+        e.sim.reset()
+        e.sim.apply_wrench(np.zeros(3), np.zeros(3))
+        e._measure()
