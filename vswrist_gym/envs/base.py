@@ -21,6 +21,12 @@ reward) and the metrics ``posture_error`` (rad), ``contact_force`` (N), ``peak_c
 violation at the start of the period and after each of its substeps, ``WristSim.loop_closure_peak``; inf on a
 step where the physics diverged), ``closure_exceeded`` (``loop_closure > closure_warn``), ``is_success`` (bool,
 decided at the last step of the episode; False before, and False when ``closure_truncate`` cut the episode).
+
+This module holds the construction and the step; the rest of ``VSWristEnv`` comes from one module per job: the
+task hooks' defaults (``hooks``), the reset sequence (``reset``), how a step ends (``ending``: divergence and the
+episode's end, over arrays of worlds, shared with the batch), rendering (``render``), pickling (``pickling``), and
+the actions, observations, rewards, randomisation and scene helpers (``actions``, ``observations``, ``rewards``,
+``randomization``, ``shared``).
 """
 
 from __future__ import annotations
@@ -30,7 +36,6 @@ import math
 from typing import Any, Mapping
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
@@ -39,9 +44,13 @@ from ..params import load_params
 from ..stiffness import stored_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
 from .config import EnvConfigError, load_env_config, merge, validate_task
-from .ending import restart_failed, step_failures
+from .ending import episode_end, restart_failed, step_failures
+from .hooks import TaskHooks
 from .observations import ObservationsMixin
+from .pickling import PicklingMixin
 from .randomization import RandomizationMixin
+from .render import RenderMixin
+from .reset import ResetMixin
 from .rewards import COMMON_REWARD_TERMS, RewardsMixin, wrap_angle
 from .shared import SceneMixin
 
@@ -62,17 +71,8 @@ def _import_controller():
     return AnalyticController
 
 
-def episode_end(terminated, step, episode_steps: int, closure, closure_warn: float, closure_truncate: bool):
-    """How a step ends the episode, over arrays of worlds or one world's numbers: (time_up, cut, truncated). The
-    last step (``episode_steps``) of an episode not ended by a divergence (``terminated``); ``closure_truncate``:
-    the welds opened past ``closure_warn``, so the physics from here on is not trustworthy; either truncates."""
-    going = np.logical_not(terminated)
-    time_up = going & (step >= episode_steps)
-    cut = going & (closure > closure_warn) & closure_truncate
-    return time_up, cut, time_up | cut
-
-
-class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMixin, SceneMixin, gym.Env):
+class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, ActionsMixin, ObservationsMixin, RandomizationMixin,
+                 RewardsMixin, SceneMixin, gym.Env):
     """Base class of every VS-Wrist task (do not instantiate directly; use ``gymnasium.make``).
 
     How to write a task (``load_hold.py`` is the shortest example): a module ``envs/<task>.py`` with a subclass
@@ -168,9 +168,7 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._light_sync = not (self.reads_sensors or "tool_wrench" in cfg["observation"])
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.ctrl_dt)))
 
-        self._WristSim = _import_sim()
-        from ..sim import SimulationError
-        self._SimulationError = SimulationError
+        self._import_simulator()
         self._build_sim(self.nominal_params)
         self.ctrl = _import_controller()(params=self.nominal_params, dt=self.ctrl_dt,
                                          gravity_compensation=cfg["gravity_compensation"],
@@ -227,16 +225,25 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._reset_state()
         self._needs_reset = True  # step() before the first reset() is refused, as after an episode's end
 
-    def _validate_task(self) -> None:
-        """Cross-checks of the task section beyond per-field ranges (override in tasks)."""
+    def _import_simulator(self) -> None:
+        """The simulator's classes, on this world (construction and unpickling)."""
+        self._WristSim = _import_sim()
+        from ..sim import SimulationError
+        self._SimulationError = SimulationError
 
-    def _build_sim(self, params) -> None:
-        self.params = params
+    def _make_sim(self, params) -> None:
+        """This task's simulator with ``params``, at the config's ``physics_dt`` (construction, a randomised
+        model's rebuild, unpickling)."""
         self.sim = self._WristSim(params=params, scene_fn=self._full_scene)
         self.model, self.data = self.sim.model, self.sim.data
         if self.cfg["physics_dt"] is not None:
             self.model.opt.timestep = self.cfg["physics_dt"]
             self.sim.timestep = self.cfg["physics_dt"]
+
+    def _build_sim(self, params) -> None:
+        """The simulator with ``params`` and what the step reads of its model (substeps, ids, nominal values)."""
+        self.params = params
+        self._make_sim(params)
         dt = float(self.model.opt.timestep)
         n = self.ctrl_dt / dt
         if abs(n - round(n)) > 1e-9 * n or round(n) < 1:
@@ -252,91 +259,11 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
                                      if (self.model.geom(g).name or "").startswith("task_")], dtype=int)
         self._nominal_friction = self.model.geom_friction[self._task_geoms].copy()
 
-    def _scene_ids(self) -> None:
-        """Look up the task's model elements after (re)compilation (override in tasks)."""
-
     def success_description(self) -> str:
         """The success criterion in words, with this instance's numbers."""
         return self.success_text.format(**{k: v for k, v in self.tp.items() if not isinstance(v, tuple)})
 
-    # ------------------------------------------------------------------ episode
-    def _reset_state(self) -> None:
-        self._step = 0
-        self._t = 0.0
-        self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
-        self._target = np.zeros(3)
-        self._posture = np.zeros(3)
-        self._defl = np.zeros(3)
-        self._posture_list = [0.0, 0.0, 0.0]
-        self._defl_list = [0.0, 0.0, 0.0]
-        self._energy = 0.0
-        self._contact = 0.0
-        self._closure = 0.0
-        self._peak_contact = 0.0
-        self._sum_contact_sq = 0.0
-        self._noise_std = None
-        self._nz = None
-        self._noise = None
-        self._latency = 0.0
-        self._theta_prev = None
-        self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        self._reset_begin(seed)
-        type(self)._reset_worlds([self])
-        self._settle()
-        return self._reset_finish()
-
-    # A reset in three phases, as a step, so that a batch settles the worlds it resets on its threads, beside
-    # the other worlds' physics: ``_reset_begin`` (the episode's draws, the initial state and references),
-    # ``_settle`` (the physics only: touches nothing but this world's MjModel/MjData) and ``_reset_finish``.
-    def _reset_begin(self, seed: int | None) -> None:
-        type(self)._reset_begin_worlds([self], [seed])
-
-    @classmethod
-    def _reset_begin_worlds(cls, worlds: list, seeds: list) -> None:
-        """``_reset_begin`` of ``worlds`` (of this task) with ``seeds``: each world's draws from its own
-        generator, then the simulators' initial states in one call (``WristSim.reset_many``: the kinematics of
-        all their postures over arrays, what a reset costs most)."""
-        draws = []
-        for e, seed in zip(worlds, seeds):
-            if seed is None:
-                e._rewind_unread_noise()
-            gym.Env.reset(e, seed=seed)
-            e._reset_state()
-            e._randomize()
-            u0, ps0, s0 = e._task_reset(e.np_random)
-            draws.append((u0, float(ps0), float(e.stiffness_map.to_lam(s0))))
-        worlds[0]._WristSim.reset_many([e.sim for e in worlds], [tuple(d[0]) for d in draws],
-                                       [d[1] for d in draws], [d[2] for d in draws])
-        for e, (u0, ps0, lam0) in zip(worlds, draws):
-            e.ctrl.reset(posture=(float(u0[0]), float(u0[1]), ps0), lam=lam0)
-            e.sim.apply_wrench(np.zeros(3), np.zeros(3))
-            if e.cfg["settle_s"] > 0.0:
-                e.sim.set_motor_references(e.ctrl.step(np.array([u0[0], u0[1], ps0]), lam=lam0))
-
-    def _settle(self) -> None:
-        """Let the wrist settle under gravity at the initial references (the simulator starts at rest at the
-        exact posture, which is not an equilibrium once the hand's and the tool's weight act)."""
-        if self.cfg["settle_s"] > 0.0:
-            self.sim.step(self._settle_steps * self.model.opt.timestep)
-
-    def _reset_finish(self):
-        self._after_reset()
-        # the episode's references at every control instant k ctrl_dt, in one array call (the same times as
-        # ``_step * ctrl_dt``): a step reads its row, in a batch as alone
-        self._references = self._reference(np.arange(self.episode_steps + 1) * self.ctrl_dt)
-        self._target = self._references[0]
-        self._measure()
-        self._closure = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
-            self.sim.loop_closure_error()
-        self._needs_reset = False
-        self._theta_prev = None
-        self._draw_noise_table()
-        if self.cfg["action_mode"] == "residual":
-            self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
-        return self._observation(), self._info({}, final=False)
-
+    # ------------------------------------------------------------------ step
     def step(self, action):
         if self._needs_reset:
             raise ResetNeeded("step() called after the episode ended (terminated or truncated) or before the "
@@ -378,6 +305,16 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
             self.sim.sync_kinematics()
         else:
             self.sim.sync()
+
+    def _advance_physics(self, duration: float, first: bool) -> None:
+        """Advance the physics by ``duration`` within a control period (``first``: its first part, where the
+        loop-closure peak restarts). Runs on a batch's threads: the physics only, one ``mj_step`` call. Tasks that
+        must see every substep (a force averaged over the period, the instant of an impact) measure inside it
+        with a plugin (``shared.PeriodMeanForce``) rather than stepping one substep at a time."""
+        if first:
+            self.sim.step(duration)
+        else:
+            self.sim.step(duration, restart_peak=False)
 
     def _finish_step(self):
         a, failure = self._a, self._failure
@@ -437,135 +374,3 @@ class VSWristEnv(ActionsMixin, ObservationsMixin, RandomizationMixin, RewardsMix
         self._defl_list = self._defl.tolist()
         self._energy = float(stored_energy(self._defl, self.params))
         self._contact = self._contact_force()
-
-    # ------------------------------------------------------------------ task hooks
-    def _scene(self, spec: mujoco.MjSpec) -> None:
-        """Add task geometry to the model before compilation."""
-
-    def _task_reset(self, rng: np.random.Generator) -> tuple[np.ndarray, float, float]:
-        """Sample the episode; return the initial posture u (2,), PS angle and stiffness command."""
-        raise NotImplementedError
-
-    def _after_reset(self) -> None:
-        """Place task objects once the simulator is at its initial state."""
-
-    def _reference(self, t: float) -> np.ndarray:
-        raise NotImplementedError
-
-    @classmethod
-    def _reset_worlds(cls, worlds: list) -> None:
-        """The part of the episode's set-up a task computes over the worlds that reset together, after each one's
-        ``_reset_begin`` (its draws and initial state) and before its ``_reset_finish``; Python state only (a batch
-        runs it while those worlds settle). The single env calls it with itself. Default: nothing."""
-
-    def _before_physics(self, t: float) -> None:
-        """Apply external loads for the coming control period. A task that writes its loads over arrays of worlds
-        (``_before_physics_worlds``) leaves this to the base, which runs that for a batch of one."""
-        cls = type(self)
-        if cls._before_physics_worlds.__func__ is not VSWristEnv._before_physics_worlds.__func__:
-            cls._before_physics_worlds([self], np.array([t]))
-
-    @classmethod
-    def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
-        """``_before_physics`` of ``worlds`` (of this task) at their times ``t`` (N,), over arrays; the default
-        calls each world's ``_before_physics``."""
-        for e, tk in zip(worlds, t.tolist()):
-            e._before_physics(tk)
-
-    def _advance_physics(self, duration: float, first: bool) -> None:
-        """Advance the physics by ``duration`` within a control period (``first``: its first part, where the
-        loop-closure peak restarts). Runs on a batch's threads: the physics only, one ``mj_step`` call. Tasks that
-        must see every substep (a force averaged over the period, the instant of an impact) measure inside it
-        with a plugin (``shared.PeriodMeanForce``) rather than stepping one substep at a time."""
-        if first:
-            self.sim.step(duration)
-        else:
-            self.sim.step(duration, restart_peak=False)
-
-    def _contact_force(self) -> float:
-        """Contact force (N) after a step; the simulator's sensors are current (``posture()`` synced them)."""
-        return 0.0
-
-    def _tracking_error(self, err: np.ndarray) -> np.ndarray:
-        """The part of the posture error (RUD, FE, PS; the last axis) that the tracking reward counts. Index the
-        last axis only (``err[..., 1:]``): a batch passes all its worlds' errors (N, 3) at once."""
-        return err
-
-    def _task_reward_terms(self, err: np.ndarray) -> dict[str, float]:
-        return {}
-
-    def _task_info(self) -> dict:
-        """Task-specific ``info`` entries of every step and reset (numbers or bools, the same keys each time)."""
-        return {}
-
-    def _success(self) -> bool:
-        raise NotImplementedError
-
-    # ------------------------------------------------------------------ rendering
-    def render(self):
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
-            return None
-        if self.render_mode == "rgb_array":
-            if self._renderer is None:
-                self._renderer = mujoco.Renderer(self.model, self.cfg["render"]["height"], self.cfg["render"]["width"])
-            self.sim.sync()  # brings body poses (and cameras) up to date after a step
-            self._renderer.update_scene(self.data, camera=self.cfg["render"]["camera"])
-            return self._renderer.render().copy()
-        if self._viewer is None:
-            import os
-            import sys
-            has_display = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
-            if sys.platform.startswith("linux") and not has_display:
-                # MuJoCo's GLFW viewer aborts the whole process without a display; fail cleanly instead
-                raise RuntimeError("render_mode='human' needs a display (DISPLAY or WAYLAND_DISPLAY is not set); "
-                                   "use render_mode='rgb_array' with MUJOCO_GL=egl on a headless machine")
-            from mujoco import viewer as mj_viewer  # needs a display (GLFW)
-            self._viewer = mj_viewer.launch_passive(self.model, self.data)
-        self._viewer.sync()
-        return None
-
-    def _close_renderer(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        if self._viewer is not None:
-            self._viewer.close()
-            self._viewer = None
-
-    def close(self):
-        self._close_renderer()
-
-    # ------------------------------------------------------------------ pickling
-    def __getstate__(self):
-        """Pickle the settings and the full episode state; MuJoCo objects are rebuilt on load."""
-        state = {k: v for k, v in self.__dict__.items()
-                 if k not in ("sim", "model", "data", "_renderer", "_viewer", "_WristSim", "_terms", "obs_terms",
-                              "_SimulationError")}
-        state["_sim_state"] = self.sim.get_state()
-        state["_model_mutable"] = (self.model.body_mass.copy(), self.model.body_inertia.copy(),
-                                   self.model.geom_friction.copy(), self.model.dof_frictionloss.copy())
-        return state
-
-    def __setstate__(self, state):
-        sim_state = state.pop("_sim_state")
-        mass, inertia, friction, frictionloss = state.pop("_model_mutable")
-        self.__dict__.update(state)
-        self._WristSim = _import_sim()
-        from ..sim import SimulationError
-        self._SimulationError = SimulationError
-        self._renderer = None
-        self._viewer = None
-        self.sim = self._WristSim(params=self.params, scene_fn=self._full_scene)
-        self.model, self.data = self.sim.model, self.sim.data
-        if self.cfg["physics_dt"] is not None:
-            self.model.opt.timestep = self.cfg["physics_dt"]
-            self.sim.timestep = self.cfg["physics_dt"]
-        self._scene_ids()
-        self.model.body_mass[:] = mass
-        self.model.body_inertia[:] = inertia
-        self.model.geom_friction[:] = friction
-        self.model.dof_frictionloss[:] = frictionloss
-        self.sim.set_state(sim_state)
-        self._terms = self._obs_terms()
-        self.obs_terms = [self._terms[n] for n in self.cfg["observation"]]

@@ -23,8 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..stiffness import SpringLaw, stored_energy
-from .base import episode_end
-from .ending import restart_failed, step_failures
+from .ending import episode_end, restart_failed, step_failures
 from .observations import observe
 from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
 

@@ -1,5 +1,6 @@
-"""How a step's physics fails, and what the environment does then, over arrays of worlds: the single env
-(``base.VSWristEnv._finish_step``) calls these with its one world, the batch (``batch_step``) with its live worlds.
+"""How a step ends, over arrays of worlds: its physics failing, what the environment does then, and the episode's
+end. The single env (``base.VSWristEnv._finish_step``) calls these with its one world, the batch (``batch_step``)
+with its live worlds.
 
 A world's physics failed when its simulator reported a divergence (MuJoCo found the state unstable and reset it:
 ``WristSim.step`` raised ``SimulationError``) or its measured posture or spring deflections are not finite. Its
@@ -39,3 +40,13 @@ def restart_failed(worlds: list, failures: dict, closure: list) -> None:
         e.sim.reset()
         e.sim.apply_wrench(np.zeros(3), np.zeros(3))
         e._measure()
+
+
+def episode_end(terminated, step, episode_steps: int, closure, closure_warn: float, closure_truncate: bool):
+    """How a step ends the episode, over arrays of worlds or one world's numbers: (time_up, cut, truncated). The
+    last step (``episode_steps``) of an episode not ended by a divergence (``terminated``); ``closure_truncate``:
+    the welds opened past ``closure_warn``, so the physics from here on is not trustworthy; either truncates."""
+    going = np.logical_not(terminated)
+    time_up = going & (step >= episode_steps)
+    cut = going & (closure > closure_warn) & closure_truncate
+    return time_up, cut, time_up | cut
