@@ -241,6 +241,30 @@ def test_pickled_batch_continues_identically():
     twin.close()
 
 
+def test_worlds_read_and_write_the_batch_episode_state():
+    """The batch's episode state (``episode.EpisodeState``, (N,) arrays) and its worlds' own attributes are one
+    memory: the batch's array step advances every world's clock and contact record, a world's reset writes its
+    row, and a pickled batch shares it again."""
+    venv = make_batch("VSWrist/Impact-v0", n=3, threads=1)
+    venv.reset(seed=0)
+    a = np.full(venv.action_space.shape, 0.2)
+    for _ in range(4):
+        venv.step(a)
+    ve = venv.unwrapped
+    for twin in (ve, pickle.loads(pickle.dumps(ve))):
+        ep = twin._ep
+        np.testing.assert_array_equal(ep.step, [4, 4, 4])
+        for i, e in enumerate(twin.envs):
+            assert (e._step, e._t, e._peak_contact, e._sum_contact_sq) == (
+                ep.step[i], ep.t[i], ep.peak_contact[i], ep.sum_contact_sq[i])
+            assert type(e._step) is int and type(e._t) is float
+        twin.reset(options={"reset_mask": np.array([False, True, False])})
+        assert ep.step[1] == 0 and ep.step[0] == 4 and ep.t[1] == 0.0
+        twin.step(a)
+        np.testing.assert_array_equal(ep.step, [5, 1, 5])
+    venv.close()
+
+
 def test_render_one_or_all_worlds(headless_gl):
     venv = make_batch("VSWrist/Polish-v1", n=2, render_mode="rgb_array", config={"render": {"width": 64,
                                                                                           "height": 48}})

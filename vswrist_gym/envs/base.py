@@ -22,11 +22,11 @@ violation at the start of the period and after each of its substeps, ``WristSim.
 step where the physics diverged), ``closure_exceeded`` (``loop_closure > closure_warn``), ``is_success`` (bool,
 decided at the last step of the episode; False before, and False when ``closure_truncate`` cut the episode).
 
-This module holds the construction and the step; the rest of ``VSWristEnv`` comes from one module per job: the
-task hooks' defaults (``hooks``), the reset sequence (``reset``), how a step ends (``ending``: divergence and the
-episode's end, over arrays of worlds, shared with the batch), rendering (``render``), pickling (``pickling``), and
-the actions, observations, rewards, randomisation and scene helpers (``actions``, ``observations``, ``rewards``,
-``randomization``, ``shared``).
+This module holds the construction and the step; the rest of ``VSWristEnv`` comes from one module per job: the task
+hooks' defaults (``hooks``), the reset sequence (``reset``), the episode state as arrays shared with a batch
+(``episode``), how a step ends (``ending``: divergence and the episode's end, over arrays of worlds, shared with the
+batch), rendering (``render``), pickling (``pickling``), and the actions, observations, rewards, randomisation and
+scene helpers (``actions``, ``observations``, ``rewards``, ``randomization``, ``shared``).
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ from ..stiffness import stored_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
 from .config import EnvConfigError, load_env_config, merge, validate_task
 from .ending import episode_end, restart_failed, step_failures
+from .episode import EpisodeState, EpisodeStateMixin, record_contact, tick
 from .hooks import TaskHooks
 from .observations import ObservationsMixin
 from .pickling import PicklingMixin
@@ -71,8 +72,8 @@ def _import_controller():
     return AnalyticController
 
 
-class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, ActionsMixin, ObservationsMixin, RandomizationMixin,
-                 RewardsMixin, SceneMixin, gym.Env):
+class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeStateMixin, ActionsMixin, ObservationsMixin,
+                 RandomizationMixin, RewardsMixin, SceneMixin, gym.Env):
     """Base class of every VS-Wrist task (do not instantiate directly; use ``gymnasium.make``).
 
     How to write a task (``load_hold.py`` is the shortest example): a module ``envs/<task>.py`` with a subclass
@@ -222,6 +223,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, ActionsMixin
         if cfg["render"]["camera"] not in cams:
             raise EnvConfigError(f"'render.camera' = {cfg['render']['camera']!r} is not a camera of the model; "
                                  f"choose one of {cams}")
+        self._ep = EpisodeState(1)  # a batch makes it a row of its own (``episode.share``)
         self._reset_state()
         self._needs_reset = True  # step() before the first reset() is refused, as after an episode's end
 
@@ -318,22 +320,22 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, ActionsMixin
 
     def _finish_step(self):
         a, failure = self._a, self._failure
-        self._tick()
+        k, t = self._tick()
         self._measure()
-        failures = step_failures([failure], self._posture[None], self._defl[None], [self._t])
+        failures = step_failures([failure], self._posture[None], self._defl[None], [t])
         # the physics' validity, read only where the physics did not fail (MuJoCo reset a diverged state, so its
         # opening is not there to read: ``restart_failed`` makes it inf)
         closure = [math.inf if failures else self.sim.loop_closure_peak()]
         restart_failed([self], failures, closure)
         self._closure = closure[0]
         failure = failures.get(0)
-        self._target = self._references[self._step]
+        self._target = self._references[k]
         err = wrap_angle(self._posture - self._target)
         self._record_step(err)
         weighted, reward = self._reward(err, a, failure)
         self._prev_action = a.astype(np.float32)
         terminated = failure is not None
-        time_up, cut, truncated = episode_end(terminated, self._step, self.episode_steps, self._closure,
+        time_up, cut, truncated = episode_end(terminated, k, self.episode_steps, self._closure,
                                               self._closure_warn, self._closure_truncate)
         truncated = bool(truncated)
         self._needs_reset = terminated or truncated
@@ -344,24 +346,30 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, ActionsMixin
             info["simulation_error"] = failure
         return obs, float(reward), terminated, truncated, info
 
-    def _tick(self) -> int:
-        """The step's clock after the physics (the single env's step, and each world of a batch's): the references
-        just run become the previous ones (actuation latency), and the step count and time advance."""
+    def _tick(self) -> tuple[int, float]:
+        """The step's clock after the physics (``episode.tick``, as a batch's over its worlds): the references
+        just run become the previous ones (actuation latency), and the step count and time advance; returns them."""
         self._theta_prev = self._theta
-        k = self._step = self._step + 1
-        self._t = k * self.ctrl_dt
-        return k
+        ep = self._ep
+        k, t = tick(ep.step.item(0), self.ctrl_dt)
+        ep.step[0] = k
+        ep.t[0] = t
+        return k, t
 
     def _record_step(self, err: np.ndarray) -> None:
-        """The episode's record after a step's measures (the single env's step, and each world of a batch's): the
-        contact force's peak and sum of squares, and the history that the success criteria read."""
-        c = self._contact
-        self._peak_contact = max(self._peak_contact, c)
-        self._sum_contact_sq += c * c
+        """The episode's record after a step's measures: the contact force's peak and sum of squares
+        (``episode.record_contact``, as a batch's over its worlds), and the history."""
+        self._peak_contact, self._sum_contact_sq = record_contact(self._peak_contact, self._sum_contact_sq,
+                                                                  self._contact)
+        self._record_history(err)
+
+    def _record_history(self, err: np.ndarray) -> None:
+        """The history that the success criteria read (each world of a batch's too): the step's posture error,
+        stored energy and contact force."""
         h = self._history
         h["error"].append(err)
         h["energy"].append(self._energy)
-        h["contact"].append(c)
+        h["contact"].append(self._contact)
 
     def _measure(self) -> None:
         """Read the simulator once per step (``posture()`` also brings its sensors up to date, unless

@@ -41,6 +41,7 @@ from .actions import check_actions
 from .base import VSWristEnv
 from .batch_physics import PhysicsMixin
 from .batch_step import STEP_METHODS, ArrayStepMixin
+from .episode import share
 from .shared import PeriodMeanForce
 from .vector_info import VectorInfoMixin
 
@@ -109,6 +110,8 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         self.envs = [cls(render_mode=render_mode, config=config, **kwargs) for _ in range(self.num_envs)]
         for e in self.envs:
             e.spec = spec
+        # every world's episode state as one structure of (N,) arrays, each world's its row (``episode.share``)
+        self._ep = share(self.envs)
         first = self.envs[0]
         if max_episode_steps is not None and max_episode_steps != first.episode_steps:
             raise ValueError(f"max_episode_steps = {max_episode_steps} differs from the task's episode length "
@@ -272,7 +275,8 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         n = self.num_envs
         resetting = self._autoreset
         live = ~resetting
-        idx = np.flatnonzero(live).tolist()
+        ids = np.flatnonzero(live)
+        idx = ids.tolist()
         worlds = [envs[i] for i in idx]
         same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
         # resets begun, settling on the pool beside the physics: the worlds that ended on the last step (NEXT_STEP)
@@ -284,7 +288,7 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
             self._start_resets(reset_now, started)
         A = None
         if worlds and not native:
-            A, theta = self._begin(worlds, acts[idx])
+            A, theta = self._begin(worlds, ids, acts[idx])
         finished = None
         if native:  # the array step's _begin, then the physics, beside which the resets begin
             finished = self._native_step(worlds, idx, acts[idx], started if same_step else None,
@@ -299,7 +303,7 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         extras: dict[int, dict] = {}
         cols: dict[str, np.ndarray] = {}
         if worlds:
-            o, r, te, tr, cols, failures = finished if finished is not None else self._finish(worlds, A)
+            o, r, te, tr, cols, failures = finished if finished is not None else self._finish(worlds, ids, A)
             obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
             for k, msg in failures.items():
                 extras[idx[k]] = {"simulation_error": msg}
@@ -369,6 +373,7 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+        self._ep = share(self.envs)  # the worlds' rows came back as arrays of their own
         self._attach(range(self.num_envs))
         self.set_threads(self.threads)
 

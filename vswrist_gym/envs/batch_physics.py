@@ -124,7 +124,7 @@ class PhysicsMixin:
         def finish(pos: list) -> None:
             ws = [worlds[p] for p in pos]
             self._after_native(ws, [idx[p] for p in pos], status[pos])
-            part = self._finish(ws, A[pos], G[pos])
+            part = self._finish(ws, widx[pos], A[pos], G[pos])
             parts.append((pos, part))
             if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
                 self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
@@ -132,7 +132,7 @@ class PhysicsMixin:
         def begin(lo: int, hi: int) -> tuple[np.ndarray | None, np.ndarray]:
             """``_begin`` of live worlds lo..hi-1: their clipped actions and motor references (hi - lo, 4)."""
             ws, ids = worlds[lo:hi], idx[lo:hi]
-            a, theta = self._begin(ws, acts[lo:hi])
+            a, theta = self._begin(ws, widx[lo:hi], acts[lo:hi])
             return a, self._motor_matrix(ws, ids, theta)
 
         k = min(CHUNKS_PER_THREAD * self.threads, L // MIN_CHUNK_WORLDS)

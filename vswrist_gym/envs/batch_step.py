@@ -24,6 +24,7 @@ import numpy as np
 
 from ..stiffness import SpringLaw, stored_energy
 from .ending import episode_end, restart_failed, step_failures
+from .episode import record_contact, tick
 from .observations import observe
 from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
 
@@ -75,10 +76,11 @@ class BatchMeasures:
 class ArrayStepMixin:
     """``_begin`` and ``_finish`` of ``VSWristVectorEnv``: the single env's step phases over arrays of worlds."""
 
-    def _begin(self, worlds: list, acts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def _begin(self, worlds: list, ids: np.ndarray, acts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``, over
-        arrays where the mode runs the controller with a commanded lam); returns the clipped actions and the
-        motor references (L, 4) where the controller computed them over arrays (else None)."""
+        arrays where the mode runs the controller with a commanded lam; ``ids``: their indices in the batch);
+        returns the clipped actions and the motor references (L, 4) where the controller computed them over arrays
+        (else None)."""
         A = np.maximum(acts, -1.0)
         np.minimum(A, 1.0, out=A)
         first = worlds[0]
@@ -96,14 +98,15 @@ class ArrayStepMixin:
             for e, a in zip(worlds, A):
                 e._a, e._theta = a, e._motor_refs(a)
         if self._hook_before:
-            type(first)._before_physics_worlds(worlds, np.array([e._t for e in worlds]))
+            type(first)._before_physics_worlds(worlds, self._ep.t[ids])
         return A, theta
 
-    def _finish(self, worlds: list, A: np.ndarray, G: np.ndarray | None = None):
-        """``VSWristEnv._finish_step`` of the live worlds: the simulators' reads come gathered in ``G`` (rows of
-        ``batch_sim.gather_plan``, filled by the compiled advance; None: gathered here), the task hooks run world by
-        world (in the single env's order, so each draws its noise from its own generator as it would alone);
-        the measures' math, rewards, observation and info run over arrays."""
+    def _finish(self, worlds: list, ids: np.ndarray, A: np.ndarray, G: np.ndarray | None = None):
+        """``VSWristEnv._finish_step`` of the live worlds (``ids``: their indices in the batch): the simulators'
+        reads come gathered in ``G`` (rows of ``batch_sim.gather_plan``, filled by the compiled advance; None:
+        gathered here), the task hooks run world by world (in the single env's order, so each draws its noise from
+        its own generator as it would alone); the clock, the contact record, the measures' math, rewards,
+        observation and info run over arrays."""
         first = worlds[0]
         L = len(worlds)
         dt = first.ctrl_dt
@@ -112,12 +115,16 @@ class ArrayStepMixin:
         noise = first._noise_std is not None
         failed = [e._failure for e in worlds]
         hook_contact = self._hook_contact
-        # world by world, first (the single env's step up to ``_measure``'s contact hook): the step count and
-        # time, the task's contact force; and what the arrays below need of each world's state
-        contact, K, d0, T, lam, prev, nz_rows, steps = [], [], [], [], [], [], [], []
-        for e in worlds:
-            k = e._tick()
-            steps.append(k)
+        # the clock (``VSWristEnv._tick``) of every world, before any task hook reads it
+        ep = self._ep
+        steps, t = tick(ep.step[ids], dt)
+        ep.step[ids] = steps
+        ep.t[ids] = t
+        # world by world (the single env's step up to ``_measure``'s contact hook): the references just run become
+        # the previous ones, the task's contact force; and what the arrays below need of each world's state
+        contact, K, d0, T, lam, prev, nz_rows = [], [], [], [], [], [], []
+        for e, k in zip(worlds, steps.tolist()):
+            e._theta_prev = e._theta
             sp = e.params.spring
             K.append(sp.K)
             d0.append(sp.delta0)
@@ -141,8 +148,6 @@ class ArrayStepMixin:
         elif redo:
             G[redo] = bsim.gather([sims[k] for k in redo])
         P, D, Q = bsim.read_posture(G)
-        steps = np.array(steps)
-        t = steps * dt  # each world's time, as its ``_tick`` computed it
         failures = step_failures(failed, P, D, t)
         closure = bsim.read_closure(G, sims)
         restart_failed(worlds, failures, closure)
@@ -156,6 +161,10 @@ class ArrayStepMixin:
         T = np.array(T)
         err = wrap_angle(P - T)
         contact_a = np.array(contact)
+        # the contact record (``VSWristEnv._record_step``), over arrays
+        peak, sumsq = record_contact(ep.peak_contact[ids], ep.sum_contact_sq[ids], contact_a)
+        ep.peak_contact[ids] = peak
+        ep.sum_contact_sq[ids] = sumsq
         closure_a = np.array(closure)
         lam = np.array(lam)
         prev = np.array(prev)
@@ -169,15 +178,12 @@ class ArrayStepMixin:
         # world by world: the state the single env keeps, the task's reward terms
         hook_reward = self._hook_reward
         task_raw = []
-        peak, sumsq = [], []
         Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
         for e, p, d, pl, dl, en, c, cl, tg, er, pa, end in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err,
                                                                 PA, ends):
             e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
             e._energy, e._contact, e._closure, e._target = en, c, cl, tg
-            e._record_step(er)
-            peak.append(e._peak_contact)
-            sumsq.append(e._sum_contact_sq)
+            e._record_history(er)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))
             e._prev_action = pa
@@ -199,7 +205,7 @@ class ArrayStepMixin:
         success = np.zeros(L, dtype=bool)
         for k in np.flatnonzero(time_up & ~cut).tolist():
             success[k] = bool(worlds[k]._success())
-        cols.update(step_metrics(err, contact_a, np.array(peak), np.array(sumsq), steps, energy, lam, closure_a,
+        cols.update(step_metrics(err, contact_a, peak, sumsq, steps, energy, lam, closure_a,
                                  first._closure_warn, t, success))
         if self._hook_info:
             extra = [e._task_info() for e in worlds]

@@ -1,0 +1,100 @@
+"""Episode state of N worlds as (N,) arrays, one structure for the single env (N = 1) and the batch, and the
+step's updates of it as functions, state in, state out (over arrays of worlds, or one world's numbers).
+
+``EpisodeState`` holds the episode's clock (``step``: control steps taken, ``t``: time, s) and its contact record
+(``peak_contact``: the largest contact force, N; ``sum_contact_sq``: the sum of its squares, N^2). A batch owns one
+of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch updates every world
+with one array operation and the world reads its own row, with nothing copied between them. The single env owns
+one of a world; its attributes ``_step``, ``_t``, ``_peak_contact`` and ``_sum_contact_sq`` read and write its row.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class EpisodeState:
+    """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
+
+    FIELDS = ("step", "t", "peak_contact", "sum_contact_sq")
+    __slots__ = FIELDS
+
+    def __init__(self, n: int):
+        self.step = np.zeros(n, dtype=np.int64)
+        self.t = np.zeros(n)
+        self.peak_contact = np.zeros(n)
+        self.sum_contact_sq = np.zeros(n)
+
+    def row(self, i: int) -> EpisodeState:
+        """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
+        out = EpisodeState.__new__(EpisodeState)
+        for f in self.FIELDS:
+            setattr(out, f, getattr(self, f)[i:i + 1])
+        return out
+
+    def __getstate__(self):
+        return {f: getattr(self, f) for f in self.FIELDS}
+
+    def __setstate__(self, state):
+        for f in self.FIELDS:
+            setattr(self, f, state[f])
+
+
+def share(worlds: list) -> EpisodeState:
+    """One state of ``worlds`` (each holding its own, ``_ep``) with their current values; each world's ``_ep``
+    becomes its row of it."""
+    out = EpisodeState(len(worlds))
+    for f in EpisodeState.FIELDS:
+        getattr(out, f)[:] = np.concatenate([getattr(e._ep, f) for e in worlds])
+    for i, e in enumerate(worlds):
+        e._ep = out.row(i)
+    return out
+
+
+def tick(step, dt: float):
+    """The clock after a control period of ``dt`` s: (step, time) from the steps taken before."""
+    k = step + 1
+    return k, k * dt
+
+
+def record_contact(peak, sum_sq, contact):
+    """The contact record after a step with ``contact`` (N): (the largest force so far, the sum of the squares).
+    The peak keeps its value unless the new force exceeds it (a NaN force leaves it as it was)."""
+    return np.where(contact > peak, contact, peak), sum_sq + contact * contact
+
+
+class EpisodeStateMixin:
+    """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``): the clock and the contact
+    record read as Python numbers, as the tasks' hooks and the info read them."""
+
+    @property
+    def _step(self) -> int:
+        return self._ep.step.item(0)
+
+    @_step.setter
+    def _step(self, value: int) -> None:
+        self._ep.step[0] = value
+
+    @property
+    def _t(self) -> float:
+        return self._ep.t.item(0)
+
+    @_t.setter
+    def _t(self, value: float) -> None:
+        self._ep.t[0] = value
+
+    @property
+    def _peak_contact(self) -> float:
+        return self._ep.peak_contact.item(0)
+
+    @_peak_contact.setter
+    def _peak_contact(self, value: float) -> None:
+        self._ep.peak_contact[0] = value
+
+    @property
+    def _sum_contact_sq(self) -> float:
+        return self._ep.sum_contact_sq.item(0)
+
+    @_sum_contact_sq.setter
+    def _sum_contact_sq(self, value: float) -> None:
+        self._ep.sum_contact_sq[0] = value
