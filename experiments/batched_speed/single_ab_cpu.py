@@ -58,7 +58,7 @@ def main() -> int:
         print(__doc__)
         return 2
     old = args[0]
-    new = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    new = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the repository root
     tasks = args[1:] or TASKS
     print(f"{'task':<12}{'old us':>9}{'new us':>9}{'new/old':>9}   (median of {n_pairs} alternating pairs, CPU 1, "
           f"CPU time; new/old: the median of the pairs' ratios, with their range)")
