@@ -124,7 +124,7 @@ def test_evaluate_scores_a_shipped_agent_beside_the_best_constant(tmp_path):
     from vswrist_gym.agents.baseline import DEFAULT_STIFFNESS_LEVELS
     from vswrist_gym.agents.protocol import reset_seed, run_episode
 
-    res = vswrist("evaluate", "--task", "VSWrist/Hammer-v0", "--agent", "pretrained:Hammer", "--episodes", "2",
+    res = vswrist("evaluate", "--task", "VSWrist/Hammer-v1", "--agent", "pretrained:Hammer", "--episodes", "2",
                   "--seeds", "3", "--out", tmp_path / "agent")
     assert res.returncode == 0, res.stderr
     doc = json.loads((tmp_path / "agent" / "metrics.json").read_text())
@@ -142,14 +142,14 @@ def test_evaluate_scores_a_shipped_agent_beside_the_best_constant(tmp_path):
     assert base["paired_difference_return"]["n"] == 2
     assert "best constant stiffness on the same episodes: analytic:" in res.stdout
     assert "paired difference in return" in res.stdout
-    res = vswrist("evaluate", "--task", "VSWrist/Hammer-v0", "--agent", "pretrained:Hammer", "--episodes", "1",
+    res = vswrist("evaluate", "--task", "VSWrist/Hammer-v1", "--agent", "pretrained:Hammer", "--episodes", "1",
                   "--seeds", "3", "--out", tmp_path / "plain", "--no-baseline")
     assert res.returncode == 0 and "best constant" not in res.stdout
     assert "baseline" not in json.loads((tmp_path / "plain" / "metrics.json").read_text())
 
 
 def test_video_shows_the_best_constant_of_the_same_episode(tmp_path):
-    res = vswrist("video", "--task", "VSWrist/Hammer-v0", "--agent", "pretrained:Hammer", "--seed", "4",
+    res = vswrist("video", "--task", "VSWrist/Hammer-v1", "--agent", "pretrained:Hammer", "--seed", "4",
                   "--width", "64", "--height", "48", "--out", tmp_path / "v.mp4")
     assert res.returncode == 0, res.stderr
     import re

@@ -1,5 +1,6 @@
 """Hammer: trained policies' strike speed against the optimised open-loop stiffness schedule and the best constant
-stiffness, on the same held-out episodes (the target: a learned schedule within 10 % of the optimised one).
+stiffness, on the same held-out episodes (the target: a learned schedule within 10 % of the optimised one), on
+the Hammer id the agents were trained on.
 
     python -m vswrist_gym.tools.hammer_learned --agent pretrained:Hammer:stiffness [--agent RUN_DIR ...]
                                                [--episodes 12] [--seed0 1000] [--json PATH]
@@ -23,15 +24,26 @@ import numpy as np
 TASK = "Hammer"
 
 
-def agent_speeds(text: str, seeds) -> list[float]:
-    """Strike speed of agent ``text`` (``vswrist evaluate``'s ``--agent`` syntax) on each reset seed (NaN: a miss)."""
+def trained_id(text: str) -> str:
+    """The Hammer id agent ``text`` was trained on (every agent of a comparison must share it)."""
+    from vswrist_gym.agents.evaluate import AgentSpec
+
+    spec = AgentSpec(text)
+    env_id = spec.trained.env_id if spec.trained is not None else None
+    if not (env_id or "").startswith(f"VSWrist/{TASK}-"):
+        raise ValueError(f"{text}: a policy trained on a {TASK} id is needed, got {env_id}")
+    return env_id
+
+
+def agent_speeds(text: str, seeds, env_id: str) -> list[float]:
+    """Strike speed of agent ``text`` (``vswrist evaluate``'s ``--agent`` syntax) on each reset seed of ``env_id``
+    (NaN: a miss)."""
     import gymnasium as gym
 
     from vswrist_gym.agents.evaluate import AgentSpec
     from vswrist_gym.agents.protocol import run_episode
 
     spec = AgentSpec(text)
-    env_id = f"VSWrist/{TASK}-v0"
     spec.check_task(env_id)
     env = gym.make(env_id, **spec.env_kwargs)
     try:
@@ -70,10 +82,14 @@ def main(argv: list[str] | None = None) -> int:
 
     seeds = list(range(args.seed0, args.seed0 + args.episodes))
     try:
-        learned = {a: agent_speeds(a, seeds) for a in args.agent}
+        ids = {a: trained_id(a) for a in args.agent}
+        if len(set(ids.values())) > 1:
+            raise ValueError(f"the agents were trained on different ids: {ids}")
+        env_id = next(iter(ids.values()))
+        learned = {a: agent_speeds(a, seeds, env_id) for a in args.agent}
     except (ConfigError, RunDirError, FileNotFoundError, ValueError) as exc:
         p.error(str(exc))
-    r = probe(TASK, args.episodes, seed0=args.seed0)
+    r = probe(env_id, args.episodes, seed0=args.seed0)
     speeds = r["impact_speed"]
     best = f"s={r['best_constant']:+.1f}"
     rows = {f"best constant ({best})": speeds[best], "rule": speeds["rule"], "optimised schedule": speeds["oracle"],
@@ -81,10 +97,10 @@ def main(argv: list[str] | None = None) -> int:
     rigid = float(np.mean(r["rigid_speed"]))
     sched = speeds["oracle"]
     m_sched = float(np.nanmean(sched))
-    print(f"VSWrist/{TASK}-v0, {args.episodes} held-out episodes (reset seeds {seeds[0]}-{seeds[-1]}); "
+    print(f"{env_id}, {args.episodes} held-out episodes (reset seeds {seeds[0]}-{seeds[-1]}); "
           f"rigid bound {rigid:.2f} m/s")
     print(f"{'agent':<38}{'speed m/s':>10}{'x rigid':>8}{'/ schedule':>11}{'- schedule (s.e.)':>20}{'strikes':>9}")
-    doc = {"task": f"VSWrist/{TASK}-v0", "seeds": seeds, "rigid_speed": rigid, "rows": {}}
+    doc = {"task": env_id, "seeds": seeds, "rigid_speed": rigid, "rows": {}}
     for label, v in rows.items():
         m = float(np.nanmean(v)) if np.isfinite(v).any() else math.nan
         d, se, n = paired(v, sched)

@@ -279,7 +279,7 @@ def probe(task: str, episodes: int, seed0: int = 1000, config: dict | None = Non
 
     import vswrist_gym  # noqa: F401
 
-    env = gym.make(LATEST[task], config=config or {})
+    env = gym.make(LATEST.get(task, task), config=config or {})  # a short name (the newest version) or an id
     seeds = range(seed0, seed0 + episodes)
     out = {"task": task, "constant": {}, "terms": {}, "returns": {}}
 
