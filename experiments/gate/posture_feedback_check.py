@@ -1,4 +1,5 @@
-"""Diagnostic (not part of the gate): can a posture feedback stand in for the stiffness where a learner did not?
+"""Diagnostic (run before the gate had its posture-feedback test, whose agent is this one): can a posture feedback
+stand in for the stiffness where a learner did not?
 
 A hand-written posture-only agent at the constant stiffness (the gate's residual mode, stiffness held, 0.15 rad
 posture residual): an integral trim on the measured RUD/FE error, trim <- trim - k ctrl_dt (posture - target),
@@ -16,35 +17,15 @@ import numpy as np
 
 from vswrist_gym.agents.protocol import TUNING_EVAL_SEEDS
 from vswrist_gym.tools import gate
+from vswrist_gym.tools.gate import IntegralTrim
 
 CHOOSE, MEASURE, EPISODES = TUNING_EVAL_SEEDS[:5], TUNING_EVAL_SEEDS[5:], 10
-GAINS = (0.0, 2.0, 5.0, 10.0, 20.0)   # 1/s: the trim's rate per rad of error
-SCALE = gate.POSTURE_SCALE
-
-
-class IntegralTrim:
-    def __init__(self, env, k):
-        u = env.unwrapped
-        sl = u.obs_slices
-        self.k, self.dt, self.sl = k, u.ctrl_dt, sl
-        self.cue = next((sl[n] for n in gate.CUE_TERMS if n in sl), None)
-        self.trim = np.zeros(2)
-
-    def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        obs = np.asarray(obs, dtype=float)
-        if episode_start is not None and bool(np.asarray(episode_start).reshape(-1)[0]):
-            self.trim = np.zeros(2)
-        on = self.cue is None or obs[self.cue][0] > 0.5
-        if on:
-            err = obs[self.sl["posture"]][:2] - obs[self.sl["target"]][:2]
-            self.trim = np.clip(self.trim - self.k * self.dt * err, -SCALE, SCALE)
-        return np.array([self.trim[0] / SCALE, self.trim[1] / SCALE, 0.0, 0.0], dtype=np.float32), None
+GAINS = gate.FEEDBACK_GAINS
 
 
 def main(argv):
     env_id, c, soft, stiff = argv[0], float(argv[1]), float(argv[2]), float(argv[3])
-    kw = {"config": {"action_mode": "residual",
-                     "residual": {"posture_scale": SCALE, "stiffness_scale": 0.0, "stiffness_nominal": c}}}
+    kw = gate.feedback_kwargs(c)
     run = lambda make, seeds, k=None: np.array(gate.episode_returns(env_id, make, seeds, EPISODES, k or {}))  # noqa
     const_c = run(gate.constant_agent(c), CHOOSE, {"config": {}})
     scores = {g: gate.paired(run(lambda env, g=g: IntegralTrim(env, g), CHOOSE, kw), const_c)["mean"]
