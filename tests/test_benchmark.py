@@ -202,7 +202,9 @@ def test_runs_made_with_another_entry_are_refused(tmp_path):
 
 
 def test_the_committed_leaderboard_is_what_the_command_writes():
-    docs = [json.loads(p.read_text()) for p in sorted(OUT.glob("*.json"))]
+    # the headline suite's result files (an id that left the suite keeps its file, out of the table)
+    headline = set(benchmark.headline_tasks(GATE_DIR))
+    docs = [d for d in (json.loads(p.read_text()) for p in sorted(OUT.glob("*.json"))) if d["task"] in headline]
     if not docs:
         pytest.skip("no leaderboard results committed")
     order = {t: i for i, t in enumerate(gym.registry)}
