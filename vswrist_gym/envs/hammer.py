@@ -1,12 +1,15 @@
-"""``VSWrist/Hammer-v0``: swing a hammer and strike an anvil as fast as the springs allow.
+"""``VSWrist/Hammer-v1`` (and ``-v0``): swing a hammer and strike an anvil as fast as the springs allow.
 
 The tool is a hammer: a light handle and a head (a capsule whose axis points along the swing, so that its end
 face strikes) of mass ``head_mass`` at ``handle_length`` from the hand along the tool X axis; both are drawn
-per episode from their config ranges. The posture reference is fixed: at ``swing_start_s`` it ramps flexion
-from ``fe_start`` towards ``fe_end`` as fast as the motors allow (the leg whose motor turns fastest per radian
-of FE runs at the motors' speed limit, ``motor.speed_limit`` of the device preset, throughout), at a fixed RUD
-(``rud_range``) and PS = 0; gravity (along -Z_b) is across the swing, which moves the head horizontally. An
-anvil (a plate facing the swing) stands where the head is at FE = ``fe_strike``.
+per episode from their config ranges. The posture reference is fixed, at a fixed RUD (``rud_range``) and PS = 0:
+in v1, from ``swing_start_s`` it winds back from ``fe_start`` to ``fe_back`` (the fastest leg's motor at
+``windup_speed`` x its speed limit, ``motor.speed_limit`` of the device preset), holds there ``windup_hold_s``,
+then ramps flexion towards ``fe_end`` as fast as the motors allow (the leg whose motor turns fastest per radian
+of FE at ``swing_speed`` x the speed limit, throughout): Throw's counter-movement, which lets the springs store
+energy while it turns round. v0 (``fe_back`` = ``fe_start``) has no wind-up: the ramp starts at
+``swing_start_s``. Gravity (along -Z_b) is across the swing, which moves the head horizontally. An anvil (a plate
+facing the swing) stands where the head is at FE = ``fe_strike``.
 
 A rigid wrist would bring the head to the anvil at the *rigid bound*: the speed limit times the lever (the
 head's speed per radian of FE over the leg's speed per radian of FE, at the strike posture;
@@ -19,7 +22,7 @@ the stiffness track).
 
 Reward: on the step of the first strike, the head's speed along the anvil normal just before contact
 (``impact``, m/s / ``scales.speed``); ``miss`` -1 on the last step if no strike came by ``strike_deadline_s``
-after the swing began (a late strike earns no ``impact`` either); preload energy at a small weight.
+after the forward swing began (a late strike earns no ``impact`` either); preload energy at a small weight.
 Success: a strike by the deadline at a normal speed of at least ``success_speed_ratio`` x the rigid bound, on
 the nail (the first contact within ``success_radius`` of where the nominal swing meets the anvil), with RUD and PS
 within ``success_plane_error`` of the swing's until the strike: a hammer blow, not a flailing hit (uniform random

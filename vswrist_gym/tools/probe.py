@@ -17,13 +17,13 @@ The rules (observation only):
 * Hammer: moderately soft (``HAMMER_SOFT``) until the swing's reference starts to move, then full stiffness:
   the motors need tens of milliseconds to raise the preload, so raising it from the swing's start makes the
   springs stiffen while they are deflected, which adds energy that the strike takes back.
-* Throw: soft (``THROW_SOFT``) through the wind-up, stiff (``THROW_STIFF``) from the step the reference turns
-  forward (the link, lagging, still winds back and loads the springs): raising the preload while they are
-  deflected adds energy that the throw takes back.
+* Throw, and Hammer-v1 (a wind-up before its swing): soft (``THROW_SOFT``) through the wind-up, stiff
+  (``THROW_STIFF``) from the step the reference turns forward (the link, lagging, still winds back and loads the
+  springs): raising the preload while they are deflected adds energy that the throw or the strike takes back.
 
 Hammer and Throw have no hidden state worth an oracle; their "oracle" column is an optimised open-loop schedule
-instead: ``HAMMER_KNOTS`` stiffness commands at fixed times from the swing's start (Throw: ``THROW_KNOTS`` from the
-reference's turn at the end of the wind-up), linear between, optimised with scipy (Powell) on training seeds (from
+instead: ``HAMMER_KNOTS`` stiffness commands at fixed times from the swing's start (Throw and Hammer-v1:
+``THROW_KNOTS`` from the reference's turn at the end of the wind-up), linear between, optimised with scipy (Powell) on training seeds (from
 ``TRAIN_SEED0``) and evaluated on the probe's held-out seeds. ``--headroom`` prints the headroom table of docs/environments.md.
 
 ``--success`` prints instead, per task, the success rate (and mean return) of agents that should not succeed
