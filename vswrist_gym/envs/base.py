@@ -322,7 +322,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         a, failure = self._a, self._failure
         k, t = self._tick()
         self._measure()
-        failures = step_failures([failure], self._posture[None], self._defl[None], [t])
+        failures = step_failures([failure], self._ep.posture, self._ep.defl, [t])
         # the physics' validity, read only where the physics did not fail (MuJoCo reset a diverged state, so its
         # opening is not there to read: ``restart_failed`` makes it inf)
         closure = [math.inf if failures else self.sim.loop_closure_peak()]
@@ -376,9 +376,9 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         neither the task nor the observation reads them: then only poses and velocities are updated)."""
         if self._light_sync:
             self.sim.sync_kinematics()
-        self._posture = self.sim.posture()
-        self._defl = self.sim.deflections()
-        self._posture_list = self._posture.tolist()
-        self._defl_list = self._defl.tolist()
-        self._energy = float(stored_energy(self._defl, self.params))
-        self._contact = self._contact_force()
+        ep = self._ep
+        ep.posture[0] = self.sim.posture()
+        D = self.sim.deflections()
+        ep.defl[0] = D
+        ep.energy[0] = float(stored_energy(D, self.params))
+        ep.contact[0] = self._contact_force()

@@ -118,8 +118,7 @@ class ArrayStepMixin:
         # the clock (``VSWristEnv._tick``) of every world, before any task hook reads it
         ep = self._ep
         steps, t = tick(ep.step[ids], dt)
-        ep.step[ids] = steps
-        ep.t[ids] = t
+        ep.put(ids, step=steps, t=t)
         # world by world (the single env's step up to ``_measure``'s contact hook): the references just run become
         # the previous ones, the task's contact force; and what the arrays below need of each world's state
         contact, K, d0, T, lam, prev, nz_rows = [], [], [], [], [], [], []
@@ -151,7 +150,7 @@ class ArrayStepMixin:
         failures = step_failures(failed, P, D, t)
         closure = bsim.read_closure(G, sims)
         restart_failed(worlds, failures, closure)
-        for k in failures:  # what the restarted worlds' observations read: their clean state
+        for k in failures:  # what the restarted worlds' observations read: their clean state (``_measure``'s row)
             e = worlds[k]
             P[k], D[k], contact[k] = e._posture, e._defl, e._contact
             G[k] = bsim.gather([e.sim])[0]
@@ -161,11 +160,12 @@ class ArrayStepMixin:
         T = np.array(T)
         err = wrap_angle(P - T)
         contact_a = np.array(contact)
+        closure_a = np.array(closure)
         # the contact record (``VSWristEnv._record_step``), over arrays
         peak, sumsq = record_contact(ep.peak_contact[ids], ep.sum_contact_sq[ids], contact_a)
-        ep.peak_contact[ids] = peak
-        ep.sum_contact_sq[ids] = sumsq
-        closure_a = np.array(closure)
+        # the measures and the record into the worlds' rows, before the task hooks below read them
+        ep.put(ids, posture=P, defl=D, energy=energy, contact=contact_a, closure=closure_a, peak_contact=peak,
+               sum_contact_sq=sumsq)
         lam = np.array(lam)
         prev = np.array(prev)
         terminated = np.zeros(L, dtype=bool)
@@ -178,11 +178,8 @@ class ArrayStepMixin:
         # world by world: the state the single env keeps, the task's reward terms
         hook_reward = self._hook_reward
         task_raw = []
-        Pl, Dl, El = P.tolist(), D.tolist(), energy.tolist()
-        for e, p, d, pl, dl, en, c, cl, tg, er, pa, end in zip(worlds, P, D, Pl, Dl, El, contact, closure, T, err,
-                                                                PA, ends):
-            e._posture, e._defl, e._posture_list, e._defl_list = p, d, pl, dl
-            e._energy, e._contact, e._closure, e._target = en, c, cl, tg
+        for e, tg, er, pa, end in zip(worlds, T, err, PA, ends):
+            e._target = tg
             e._record_history(er)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))

@@ -1,11 +1,18 @@
-"""Episode state of N worlds as (N,) arrays, one structure for the single env (N = 1) and the batch, and the
+"""Episode state of N worlds as (N, ...) arrays, one structure for the single env (N = 1) and the batch, and the
 step's updates of it as functions, state in, state out (over arrays of worlds, or one world's numbers).
 
-``EpisodeState`` holds the episode's clock (``step``: control steps taken, ``t``: time, s) and its contact record
-(``peak_contact``: the largest contact force, N; ``sum_contact_sq``: the sum of its squares, N^2). A batch owns one
-of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch updates every world
-with one array operation and the world reads its own row, with nothing copied between them. The single env owns
-one of a world; its attributes ``_step``, ``_t``, ``_peak_contact`` and ``_sum_contact_sq`` read and write its row.
+``EpisodeState`` holds
+
+* the episode's clock (``step``: control steps taken, ``t``: time, s) and its contact record (``peak_contact``:
+  the largest contact force, N; ``sum_contact_sq``: the sum of its squares, N^2);
+* the step's measures (``posture`` (N, 3): RUD, FE, PS, rad; ``defl`` (N, 3): the spring deflections, rad;
+  ``energy``: their stored energy, J; ``contact``: the task's contact force, N; ``closure``: the period's
+  loop-closure opening, m or rad).
+
+A batch owns one of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch
+updates every world with one array operation and the world reads its own row, with nothing copied between them.
+The single env owns one of a world; its attributes (``_step``, ``_t``, ``_posture``, ...: ``EpisodeStateMixin``)
+read and write its row.
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ import numpy as np
 class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
-    FIELDS = ("step", "t", "peak_contact", "sum_contact_sq")
+    FIELDS = ("step", "t", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure")
     __slots__ = FIELDS
 
     def __init__(self, n: int):
@@ -24,6 +31,11 @@ class EpisodeState:
         self.t = np.zeros(n)
         self.peak_contact = np.zeros(n)
         self.sum_contact_sq = np.zeros(n)
+        self.posture = np.zeros((n, 3))
+        self.defl = np.zeros((n, 3))
+        self.energy = np.zeros(n)
+        self.contact = np.zeros(n)
+        self.closure = np.zeros(n)
 
     def row(self, i: int) -> EpisodeState:
         """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
@@ -31,6 +43,11 @@ class EpisodeState:
         for f in self.FIELDS:
             setattr(out, f, getattr(self, f)[i:i + 1])
         return out
+
+    def put(self, ids, **values) -> None:
+        """The new state of the worlds ``ids`` (their rows): ``values`` {field: (len(ids), ...) array}."""
+        for f, v in values.items():
+            getattr(self, f)[ids] = v
 
     def __getstate__(self):
         return {f: getattr(self, f) for f in self.FIELDS}
@@ -64,8 +81,8 @@ def record_contact(peak, sum_sq, contact):
 
 
 class EpisodeStateMixin:
-    """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``): the clock and the contact
-    record read as Python numbers, as the tasks' hooks and the info read them."""
+    """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``): the numbers of one world read
+    as Python numbers, as the tasks' hooks and the info read them, and its vectors as (3,) views of its row."""
 
     @property
     def _step(self) -> int:
@@ -98,3 +115,43 @@ class EpisodeStateMixin:
     @_sum_contact_sq.setter
     def _sum_contact_sq(self, value: float) -> None:
         self._ep.sum_contact_sq[0] = value
+
+    @property
+    def _posture(self) -> np.ndarray:
+        return self._ep.posture[0]
+
+    @_posture.setter
+    def _posture(self, value) -> None:
+        self._ep.posture[0] = value
+
+    @property
+    def _defl(self) -> np.ndarray:
+        return self._ep.defl[0]
+
+    @_defl.setter
+    def _defl(self, value) -> None:
+        self._ep.defl[0] = value
+
+    @property
+    def _energy(self) -> float:
+        return self._ep.energy.item(0)
+
+    @_energy.setter
+    def _energy(self, value: float) -> None:
+        self._ep.energy[0] = value
+
+    @property
+    def _contact(self) -> float:
+        return self._ep.contact.item(0)
+
+    @_contact.setter
+    def _contact(self, value: float) -> None:
+        self._ep.contact[0] = value
+
+    @property
+    def _closure(self) -> float:
+        return self._ep.closure.item(0)
+
+    @_closure.setter
+    def _closure(self, value: float) -> None:
+        self._ep.closure[0] = value

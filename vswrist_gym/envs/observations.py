@@ -105,7 +105,8 @@ class WorldMeasures:
 
     def jacobian(self) -> np.ndarray:
         # the posture is finite here (``step`` ends the episode otherwise), so skip kinematics_at's checks
-        ay, az = self.env._posture_list[0], self.env._posture_list[1]
+        p = self.posture
+        ay, az = p.item(0), p.item(1)
         return np.array(self.env.ctrl._q1_ja(ay, az)[1])
 
     def task_term(self, term: ObsTerm) -> np.ndarray:

@@ -24,8 +24,6 @@ class ResetMixin:
         self._target = np.zeros(3)
         self._posture = np.zeros(3)
         self._defl = np.zeros(3)
-        self._posture_list = [0.0, 0.0, 0.0]
-        self._defl_list = [0.0, 0.0, 0.0]
         self._energy = 0.0
         self._contact = 0.0
         self._closure = 0.0
