@@ -223,7 +223,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         if cfg["render"]["camera"] not in cams:
             raise EnvConfigError(f"'render.camera' = {cfg['render']['camera']!r} is not a camera of the model; "
                                  f"choose one of {cams}")
-        self._ep = EpisodeState(1)  # a batch makes it a row of its own (``episode.share``)
+        self._ep = EpisodeState(1, self.episode_steps)  # a batch makes it a row of its own (``episode.share``)
         self._reset_state()
         self._needs_reset = True  # step() before the first reset() is refused, as after an episode's end
 
@@ -329,8 +329,9 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         restart_failed([self], failures, closure)
         self._closure = closure[0]
         failure = failures.get(0)
-        self._target = self._references[k]
-        err = wrap_angle(self._posture - self._target)
+        ep = self._ep
+        ep.target[0] = ep.references[0, k]
+        err = wrap_angle(ep.posture[0] - ep.target[0])
         self._record_step(err)
         weighted, reward = self._reward(err, a, failure)
         self._prev_action = a.astype(np.float32)

@@ -86,7 +86,7 @@ class ArrayStepMixin:
         first = worlds[0]
         mode = self._mode
         if mode in ("posture_stiffness", "residual"):
-            target = np.array([e._target for e in worlds]) if mode == "residual" else None
+            target = self._ep.target[ids] if mode == "residual" else None
             ref, lam = first._posture_command(A, target)
             # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
             theta, lam, u = first.ctrl.step_batch(ref, lam)
@@ -121,13 +121,12 @@ class ArrayStepMixin:
         ep.put(ids, step=steps, t=t)
         # world by world (the single env's step up to ``_measure``'s contact hook): the references just run become
         # the previous ones, the task's contact force; and what the arrays below need of each world's state
-        contact, K, d0, T, lam, prev, nz_rows = [], [], [], [], [], [], []
+        contact, K, d0, lam, prev, nz_rows = [], [], [], [], [], []
         for e, k in zip(worlds, steps.tolist()):
             e._theta_prev = e._theta
             sp = e.params.spring
             K.append(sp.K)
             d0.append(sp.delta0)
-            T.append(e._references[k])
             lam.append(e.ctrl.lam)
             prev.append(e._prev_action)
             if noise:
@@ -157,7 +156,7 @@ class ArrayStepMixin:
             Q[k] = bsim.qpos(G[k:k + 1])[0]
         law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
         energy = stored_energy(D, law)
-        T = np.array(T)
+        T = ep.references[ids, steps]  # the step's row of each world's reference table
         err = wrap_angle(P - T)
         contact_a = np.array(contact)
         closure_a = np.array(closure)
@@ -165,7 +164,7 @@ class ArrayStepMixin:
         peak, sumsq = record_contact(ep.peak_contact[ids], ep.sum_contact_sq[ids], contact_a)
         # the measures and the record into the worlds' rows, before the task hooks below read them
         ep.put(ids, posture=P, defl=D, energy=energy, contact=contact_a, closure=closure_a, peak_contact=peak,
-               sum_contact_sq=sumsq)
+               sum_contact_sq=sumsq, target=T)
         lam = np.array(lam)
         prev = np.array(prev)
         terminated = np.zeros(L, dtype=bool)
@@ -178,8 +177,7 @@ class ArrayStepMixin:
         # world by world: the state the single env keeps, the task's reward terms
         hook_reward = self._hook_reward
         task_raw = []
-        for e, tg, er, pa, end in zip(worlds, T, err, PA, ends):
-            e._target = tg
+        for e, er, pa, end in zip(worlds, err, PA, ends):
             e._record_history(er)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))

@@ -7,7 +7,9 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
   the largest contact force, N; ``sum_contact_sq``: the sum of its squares, N^2);
 * the step's measures (``posture`` (N, 3): RUD, FE, PS, rad; ``defl`` (N, 3): the spring deflections, rad;
   ``energy``: their stored energy, J; ``contact``: the task's contact force, N; ``closure``: the period's
-  loop-closure opening, m or rad).
+  loop-closure opening, m or rad);
+* the posture reference: the episode's table (``references`` (N, steps + 1, 3): the reference at each control
+  instant k ctrl_dt, rad, computed at reset) and the step's row of it (``target`` (N, 3)).
 
 A batch owns one of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch
 updates every world with one array operation and the world reads its own row, with nothing copied between them.
@@ -23,10 +25,12 @@ import numpy as np
 class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
-    FIELDS = ("step", "t", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure")
+    FIELDS = ("step", "t", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
+              "references", "target")
     __slots__ = FIELDS
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, steps: int):
+        """``n`` worlds whose episodes last ``steps`` control steps."""
         self.step = np.zeros(n, dtype=np.int64)
         self.t = np.zeros(n)
         self.peak_contact = np.zeros(n)
@@ -36,6 +40,8 @@ class EpisodeState:
         self.energy = np.zeros(n)
         self.contact = np.zeros(n)
         self.closure = np.zeros(n)
+        self.references = np.zeros((n, steps + 1, 3))
+        self.target = np.zeros((n, 3))
 
     def row(self, i: int) -> EpisodeState:
         """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
@@ -60,9 +66,9 @@ class EpisodeState:
 def share(worlds: list) -> EpisodeState:
     """One state of ``worlds`` (each holding its own, ``_ep``) with their current values; each world's ``_ep``
     becomes its row of it."""
-    out = EpisodeState(len(worlds))
+    out = EpisodeState.__new__(EpisodeState)
     for f in EpisodeState.FIELDS:
-        getattr(out, f)[:] = np.concatenate([getattr(e._ep, f) for e in worlds])
+        setattr(out, f, np.concatenate([getattr(e._ep, f) for e in worlds]))
     for i, e in enumerate(worlds):
         e._ep = out.row(i)
     return out
@@ -155,3 +161,15 @@ class EpisodeStateMixin:
     @_closure.setter
     def _closure(self, value: float) -> None:
         self._ep.closure[0] = value
+
+    @property
+    def _target(self) -> np.ndarray:
+        return self._ep.target[0]
+
+    @_target.setter
+    def _target(self, value) -> None:
+        self._ep.target[0] = value
+
+    @property
+    def _references(self) -> np.ndarray:
+        return self._ep.references[0]

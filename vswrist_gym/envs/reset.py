@@ -77,8 +77,9 @@ class ResetMixin:
         self._after_reset()
         # the episode's references at every control instant k ctrl_dt, in one array call (the same times as
         # ``_step * ctrl_dt``): a step reads its row, in a batch as alone
-        self._references = self._reference(np.arange(self.episode_steps + 1) * self.ctrl_dt)
-        self._target = self._references[0]
+        ep = self._ep
+        ep.references[0] = self._reference(np.arange(self.episode_steps + 1) * self.ctrl_dt)
+        ep.target[0] = ep.references[0, 0]
         self._measure()
         self._closure = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
             self.sim.loop_closure_error()
