@@ -223,7 +223,8 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         if cfg["render"]["camera"] not in cams:
             raise EnvConfigError(f"'render.camera' = {cfg['render']['camera']!r} is not a camera of the model; "
                                  f"choose one of {cams}")
-        self._ep = EpisodeState(1, self.episode_steps)  # a batch makes it a row of its own (``episode.share``)
+        # a batch makes it a row of its own (``episode.share``)
+        self._ep = EpisodeState(1, self.episode_steps, self.action_space.shape[0])
         self._reset_state()
         self._needs_reset = True  # step() before the first reset() is refused, as after an episode's end
 
@@ -319,22 +320,21 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
             self.sim.step(duration, restart_peak=False)
 
     def _finish_step(self):
-        a, failure = self._a, self._failure
+        a, failure, ep = self._a, self._failure, self._ep
         k, t = self._tick()
         self._measure()
-        failures = step_failures([failure], self._ep.posture, self._ep.defl, [t])
+        failures = step_failures([failure], ep.posture, ep.defl, [t])
         # the physics' validity, read only where the physics did not fail (MuJoCo reset a diverged state, so its
         # opening is not there to read: ``restart_failed`` makes it inf)
         closure = [math.inf if failures else self.sim.loop_closure_peak()]
         restart_failed([self], failures, closure)
         self._closure = closure[0]
         failure = failures.get(0)
-        ep = self._ep
         ep.target[0] = ep.references[0, k]
         err = wrap_angle(ep.posture[0] - ep.target[0])
         self._record_step(err)
         weighted, reward = self._reward(err, a, failure)
-        self._prev_action = a.astype(np.float32)
+        ep.prev_action[0] = a  # rounded to float32, as the observation has it
         terminated = failure is not None
         time_up, cut, truncated = episode_end(terminated, k, self.episode_steps, self._closure,
                                               self._closure_warn, self._closure_truncate)

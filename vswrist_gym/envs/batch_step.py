@@ -121,14 +121,13 @@ class ArrayStepMixin:
         ep.put(ids, step=steps, t=t)
         # world by world (the single env's step up to ``_measure``'s contact hook): the references just run become
         # the previous ones, the task's contact force; and what the arrays below need of each world's state
-        contact, K, d0, lam, prev, nz_rows = [], [], [], [], [], []
+        contact, K, d0, lam, nz_rows = [], [], [], [], []
         for e, k in zip(worlds, steps.tolist()):
             e._theta_prev = e._theta
             sp = e.params.spring
             K.append(sp.K)
             d0.append(sp.delta0)
             lam.append(e.ctrl.lam)
-            prev.append(e._prev_action)
             if noise:
                 nz = e._nz = e._noise[k]  # ``_draw_noise`` (the task's own observation terms may read it)
                 nz_rows.append(nz)
@@ -166,7 +165,7 @@ class ArrayStepMixin:
         ep.put(ids, posture=P, defl=D, energy=energy, contact=contact_a, closure=closure_a, peak_contact=peak,
                sum_contact_sq=sumsq, target=T)
         lam = np.array(lam)
-        prev = np.array(prev)
+        prev = ep.prev_action[ids]
         terminated = np.zeros(L, dtype=bool)
         terminated[list(failures)] = True
         PA = A.astype(np.float32)
@@ -177,12 +176,12 @@ class ArrayStepMixin:
         # world by world: the state the single env keeps, the task's reward terms
         hook_reward = self._hook_reward
         task_raw = []
-        for e, er, pa, end in zip(worlds, err, PA, ends):
+        for e, er, end in zip(worlds, err, ends):
             e._record_history(er)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))
-            e._prev_action = pa
             e._needs_reset = end
+        ep.put(ids, prev_action=PA)  # after the reward hooks, as the single env's _finish_step
         NZ = np.array(nz_rows) if noise else None
 
         # reward (the single env's terms, over arrays)

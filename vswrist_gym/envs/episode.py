@@ -9,7 +9,8 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
   ``energy``: their stored energy, J; ``contact``: the task's contact force, N; ``closure``: the period's
   loop-closure opening, m or rad);
 * the posture reference: the episode's table (``references`` (N, steps + 1, 3): the reference at each control
-  instant k ctrl_dt, rad, computed at reset) and the step's row of it (``target`` (N, 3)).
+  instant k ctrl_dt, rad, computed at reset) and the step's row of it (``target`` (N, 3));
+* the previous action (``prev_action`` (N, action dim), float32: the last step's clipped action, as observed).
 
 A batch owns one of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch
 updates every world with one array operation and the world reads its own row, with nothing copied between them.
@@ -26,11 +27,11 @@ class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
     FIELDS = ("step", "t", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
-              "references", "target")
+              "references", "target", "prev_action")
     __slots__ = FIELDS
 
-    def __init__(self, n: int, steps: int):
-        """``n`` worlds whose episodes last ``steps`` control steps."""
+    def __init__(self, n: int, steps: int, n_act: int):
+        """``n`` worlds whose episodes last ``steps`` control steps, with actions of ``n_act`` numbers."""
         self.step = np.zeros(n, dtype=np.int64)
         self.t = np.zeros(n)
         self.peak_contact = np.zeros(n)
@@ -42,6 +43,7 @@ class EpisodeState:
         self.closure = np.zeros(n)
         self.references = np.zeros((n, steps + 1, 3))
         self.target = np.zeros((n, 3))
+        self.prev_action = np.zeros((n, n_act), dtype=np.float32)
 
     def row(self, i: int) -> EpisodeState:
         """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
@@ -173,3 +175,11 @@ class EpisodeStateMixin:
     @property
     def _references(self) -> np.ndarray:
         return self._ep.references[0]
+
+    @property
+    def _prev_action(self) -> np.ndarray:
+        return self._ep.prev_action[0]
+
+    @_prev_action.setter
+    def _prev_action(self, value) -> None:
+        self._ep.prev_action[0] = value

@@ -20,8 +20,8 @@ class ResetMixin:
     def _reset_state(self) -> None:
         self._step = 0
         self._t = 0.0
-        self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
-        self._target = np.zeros(3)
+        self._prev_action = 0.0
+        self._target = 0.0
         self._posture = np.zeros(3)
         self._defl = np.zeros(3)
         self._energy = 0.0
@@ -87,5 +87,5 @@ class ResetMixin:
         self._theta_prev = None
         self._draw_noise_table()
         if self.cfg["action_mode"] == "residual":
-            self._prev_action = np.zeros(self.action_space.shape, dtype=np.float32)
+            self._prev_action = 0.0
         return self._observation(), self._info({}, final=False)
