@@ -119,18 +119,20 @@ class ArrayStepMixin:
         ep = self._ep
         steps, t = tick(ep.step[ids], dt)
         ep.put(ids, step=steps, t=t)
+        # the observation's sensor noise (``_draw_noise``), before the hooks: a task's own terms may read it
+        NZ = None
+        if noise:
+            NZ = ep.noise[ids, steps]
+            ep.put(ids, nz=NZ)
         # world by world (the single env's step up to ``_measure``'s contact hook): the references just run become
         # the previous ones, the task's contact force; and what the arrays below need of each world's state
-        contact, K, d0, lam, nz_rows = [], [], [], [], []
-        for e, k in zip(worlds, steps.tolist()):
+        contact, K, d0, lam = [], [], [], []
+        for e in worlds:
             e._theta_prev = e._theta
             sp = e.params.spring
             K.append(sp.K)
             d0.append(sp.delta0)
             lam.append(e.ctrl.lam)
-            if noise:
-                nz = e._nz = e._noise[k]  # ``_draw_noise`` (the task's own observation terms may read it)
-                nz_rows.append(nz)
             contact.append(e._contact_force() if hook_contact else 0.0)
         sims = [e.sim for e in worlds]
         redo = []
@@ -182,7 +184,6 @@ class ArrayStepMixin:
                 task_raw.append(e._task_reward_terms(er))
             e._needs_reset = end
         ep.put(ids, prev_action=PA)  # after the reward hooks, as the single env's _finish_step
-        NZ = np.array(nz_rows) if noise else None
 
         # reward (the single env's terms, over arrays)
         rterms = common_reward_terms(first._tracking_error(err), energy, A, prev, terminated, first.cfg["scales"])

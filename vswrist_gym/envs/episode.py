@@ -10,7 +10,10 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
   loop-closure opening, m or rad);
 * the posture reference: the episode's table (``references`` (N, steps + 1, 3): the reference at each control
   instant k ctrl_dt, rad, computed at reset) and the step's row of it (``target`` (N, 3));
-* the previous action (``prev_action`` (N, action dim), float32: the last step's clipped action, as observed).
+* the previous action (``prev_action`` (N, action dim), float32: the last step's clipped action, as observed);
+* the sensor noise: the episode's draws (``noise`` (N, steps + 1, 13): one row per observation, drawn at reset;
+  ``observations.ObservationsMixin._draw_noise_table``) and the current observation's row (``nz`` (N, 13)); read
+  only where the task's sensor noise is on.
 
 A batch owns one of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch
 updates every world with one array operation and the world reads its own row, with nothing copied between them.
@@ -27,7 +30,7 @@ class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
     FIELDS = ("step", "t", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
-              "references", "target", "prev_action")
+              "references", "target", "prev_action", "noise", "nz")
     __slots__ = FIELDS
 
     def __init__(self, n: int, steps: int, n_act: int):
@@ -44,6 +47,8 @@ class EpisodeState:
         self.references = np.zeros((n, steps + 1, 3))
         self.target = np.zeros((n, 3))
         self.prev_action = np.zeros((n, n_act), dtype=np.float32)
+        self.noise = np.zeros((n, steps + 1, 13))
+        self.nz = np.zeros((n, 13))
 
     def row(self, i: int) -> EpisodeState:
         """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
@@ -183,3 +188,17 @@ class EpisodeStateMixin:
     @_prev_action.setter
     def _prev_action(self, value) -> None:
         self._ep.prev_action[0] = value
+
+    @property
+    def _noise(self) -> np.ndarray | None:
+        """The episode's sensor noise table (None: no sensor noise)."""
+        return None if self._noise_std is None else self._ep.noise[0]
+
+    @property
+    def _nz(self) -> np.ndarray | None:
+        """The current observation's sensor noise draws (13,) (None: no sensor noise)."""
+        return None if self._noise_std is None else self._ep.nz[0]
+
+    @_nz.setter
+    def _nz(self, value) -> None:
+        self._ep.nz[0] = value

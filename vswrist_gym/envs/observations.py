@@ -175,10 +175,9 @@ class ObservationsMixin:
         in one call: the same numbers, in the same order, as one draw of 13 per observation, without a
         generator call per step (a batch pays it once per world and episode, not per step)."""
         if self._noise_std is None:
-            self._noise = None
             return
         self._noise_rng_state = self.np_random.bit_generator.state
-        self._noise = self.np_random.normal(0.0, 1.0, (self.episode_steps + 1, 13)) * self._noise_scale
+        self._ep.noise[0] = self.np_random.normal(0.0, 1.0, (self.episode_steps + 1, 13)) * self._noise_scale
 
     def _rewind_unread_noise(self) -> None:
         """Before a reset without a seed: if the last episode ended before its last step (a divergence, the
@@ -189,7 +188,10 @@ class ObservationsMixin:
             self.np_random.normal(0.0, 1.0, (self._step + 1, 13))
 
     def _draw_noise(self) -> None:
-        self._nz = None if self._noise is None else self._noise[self._step]
+        """The current observation's row of the noise table (a batch takes its worlds' rows at once)."""
+        if self._noise_std is not None:
+            ep = self._ep
+            ep.nz[0] = ep.noise[0, ep.step.item(0)]
 
     def _raw_observation(self) -> np.ndarray:
         """This world's observation before clipping and rounding to float32 (float64, every term in order)."""

@@ -30,8 +30,6 @@ class ResetMixin:
         self._peak_contact = 0.0
         self._sum_contact_sq = 0.0
         self._noise_std = None
-        self._nz = None
-        self._noise = None
         self._latency = 0.0
         self._theta_prev = None
         self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
