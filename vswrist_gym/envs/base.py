@@ -45,7 +45,7 @@ from ..stiffness import stored_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
 from .config import EnvConfigError, load_env_config, merge, validate_task
 from .ending import episode_end, restart_failed, step_failures
-from .episode import EpisodeState, EpisodeStateMixin, record_contact, tick
+from .episode import EpisodeState, EpisodeStateMixin, record_contact, record_history, tick
 from .hooks import TaskHooks
 from .observations import ObservationsMixin
 from .pickling import PicklingMixin
@@ -360,17 +360,10 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
     def _record_step(self, err: np.ndarray) -> None:
         """The episode's record after a step's measures: the contact force's peak and sum of squares
         (``episode.record_contact``, as a batch's over its worlds), and the history."""
+        ep = self._ep
         self._peak_contact, self._sum_contact_sq = record_contact(self._peak_contact, self._sum_contact_sq,
                                                                   self._contact)
-        self._record_history(err)
-
-    def _record_history(self, err: np.ndarray) -> None:
-        """The history that the success criteria read (each world of a batch's too): the step's posture error,
-        stored energy and contact force."""
-        h = self._history
-        h["error"].append(err)
-        h["energy"].append(self._energy)
-        h["contact"].append(self._contact)
+        record_history(ep, 0, ep.step.item(0), err)
 
     def _measure(self) -> None:
         """Read the simulator once per step (``posture()`` also brings its sensors up to date, unless

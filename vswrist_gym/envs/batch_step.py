@@ -24,7 +24,7 @@ import numpy as np
 
 from ..stiffness import SpringLaw, stored_energy
 from .ending import episode_end, restart_failed, step_failures
-from .episode import record_contact, tick
+from .episode import record_contact, record_history, tick
 from .observations import observe
 from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
 
@@ -166,6 +166,7 @@ class ArrayStepMixin:
         # the measures and the record into the worlds' rows, before the task hooks below read them
         ep.put(ids, posture=P, defl=D, energy=energy, contact=contact_a, closure=closure_a, peak_contact=peak,
                sum_contact_sq=sumsq, target=T)
+        record_history(ep, ids, steps, err)
         lam = np.array(lam)
         prev = ep.prev_action[ids]
         terminated = np.zeros(L, dtype=bool)
@@ -175,11 +176,10 @@ class ArrayStepMixin:
                                               first._closure_truncate)
         ends = (terminated | truncated).tolist()
 
-        # world by world: the state the single env keeps, the task's reward terms
+        # world by world: the task's reward terms
         hook_reward = self._hook_reward
         task_raw = []
         for e, er, end in zip(worlds, err, ends):
-            e._record_history(er)
             if hook_reward:
                 task_raw.append(e._task_reward_terms(er))
             e._needs_reset = end

@@ -13,7 +13,10 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
 * the previous action (``prev_action`` (N, action dim), float32: the last step's clipped action, as observed);
 * the sensor noise: the episode's draws (``noise`` (N, steps + 1, 13): one row per observation, drawn at reset;
   ``observations.ObservationsMixin._draw_noise_table``) and the current observation's row (``nz`` (N, 13)); read
-  only where the task's sensor noise is on.
+  only where the task's sensor noise is on;
+* the history that the success criteria read (``history_error`` (N, steps, 3): the posture error, rad;
+  ``history_energy`` (N, steps), J; ``history_contact`` (N, steps), N): row j holds step j + 1, so a world's
+  first ``step`` rows are its episode so far.
 
 A batch owns one of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch
 updates every world with one array operation and the world reads its own row, with nothing copied between them.
@@ -30,7 +33,8 @@ class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
     FIELDS = ("step", "t", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
-              "references", "target", "prev_action", "noise", "nz")
+              "references", "target", "prev_action", "noise", "nz", "history_error", "history_energy",
+              "history_contact")
     __slots__ = FIELDS
 
     def __init__(self, n: int, steps: int, n_act: int):
@@ -49,6 +53,9 @@ class EpisodeState:
         self.prev_action = np.zeros((n, n_act), dtype=np.float32)
         self.noise = np.zeros((n, steps + 1, 13))
         self.nz = np.zeros((n, 13))
+        self.history_error = np.zeros((n, steps, 3))
+        self.history_energy = np.zeros((n, steps))
+        self.history_contact = np.zeros((n, steps))
 
     def row(self, i: int) -> EpisodeState:
         """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
@@ -58,7 +65,7 @@ class EpisodeState:
         return out
 
     def put(self, ids, **values) -> None:
-        """The new state of the worlds ``ids`` (their rows): ``values`` {field: (len(ids), ...) array}."""
+        """The new state of the worlds ``ids`` (their rows, or (rows, columns)): ``values`` {field: array}."""
         for f, v in values.items():
             getattr(self, f)[ids] = v
 
@@ -91,6 +98,12 @@ def record_contact(peak, sum_sq, contact):
     """The contact record after a step with ``contact`` (N): (the largest force so far, the sum of the squares).
     The peak keeps its value unless the new force exceeds it (a NaN force leaves it as it was)."""
     return np.where(contact > peak, contact, peak), sum_sq + contact * contact
+
+
+def record_history(ep: EpisodeState, ids, steps, err) -> None:
+    """The history of the worlds ``ids`` (an array of rows, or one row) after their step ``steps`` (its count): the
+    step's posture error ``err`` and their stored energy and contact force (their measures, already stored)."""
+    ep.put((ids, steps - 1), history_error=err, history_energy=ep.energy[ids], history_contact=ep.contact[ids])
 
 
 class EpisodeStateMixin:
@@ -202,3 +215,12 @@ class EpisodeStateMixin:
     @_nz.setter
     def _nz(self, value) -> None:
         self._ep.nz[0] = value
+
+    @property
+    def _history(self) -> dict[str, np.ndarray]:
+        """The episode so far (what the success criteria read): {"error": (step, 3), "energy", "contact": (step,)}
+        views of this world's rows."""
+        ep = self._ep
+        k = ep.step.item(0)
+        return {"error": ep.history_error[0, :k], "energy": ep.history_energy[0, :k],
+                "contact": ep.history_contact[0, :k]}

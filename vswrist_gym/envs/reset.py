@@ -32,7 +32,6 @@ class ResetMixin:
         self._noise_std = None
         self._latency = 0.0
         self._theta_prev = None
-        self._history: dict[str, list] = {"error": [], "energy": [], "contact": []}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self._reset_begin(seed)
