@@ -223,10 +223,10 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         if cfg["render"]["camera"] not in cams:
             raise EnvConfigError(f"'render.camera' = {cfg['render']['camera']!r} is not a camera of the model; "
                                  f"choose one of {cams}")
-        # a batch makes it a row of its own (``episode.share``)
+        # a batch makes it a row of its own (``episode.share``); it starts ended: step() before the first reset() is
+        # refused, as after an episode's end
         self._ep = EpisodeState(1, self.episode_steps, self.action_space.shape[0])
         self._reset_state()
-        self._needs_reset = True  # step() before the first reset() is refused, as after an episode's end
 
     def _import_simulator(self) -> None:
         """The simulator's classes, on this world (construction and unpickling)."""
@@ -339,7 +339,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         time_up, cut, truncated = episode_end(terminated, k, self.episode_steps, self._closure,
                                               self._closure_warn, self._closure_truncate)
         truncated = bool(truncated)
-        self._needs_reset = terminated or truncated
+        ep.ended[0] = terminated or truncated
         obs = self._observation()
         info = self._info(weighted, final=bool(time_up & ~cut), err=err)
         info["posture_error_vec"] = err

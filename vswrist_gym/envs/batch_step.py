@@ -174,16 +174,14 @@ class ArrayStepMixin:
         PA = A.astype(np.float32)
         time_up, cut, truncated = episode_end(terminated, steps, first.episode_steps, closure_a, first._closure_warn,
                                               first._closure_truncate)
-        ends = (terminated | truncated).tolist()
 
         # world by world: the task's reward terms
         hook_reward = self._hook_reward
         task_raw = []
-        for e, er, end in zip(worlds, err, ends):
-            if hook_reward:
-                task_raw.append(e._task_reward_terms(er))
-            e._needs_reset = end
-        ep.put(ids, prev_action=PA)  # after the reward hooks, as the single env's _finish_step
+        if hook_reward:
+            task_raw = [e._task_reward_terms(er) for e, er in zip(worlds, err)]
+        # after the reward hooks, as the single env's _finish_step
+        ep.put(ids, prev_action=PA, ended=terminated | truncated)
 
         # reward (the single env's terms, over arrays)
         rterms = common_reward_terms(first._tracking_error(err), energy, A, prev, terminated, first.cfg["scales"])

@@ -3,8 +3,9 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
 
 ``EpisodeState`` holds
 
-* the episode's clock (``step``: control steps taken, ``t``: time, s) and its contact record (``peak_contact``:
-  the largest contact force, N; ``sum_contact_sq``: the sum of its squares, N^2);
+* the episode's clock (``step``: control steps taken, ``t``: time, s), whether it has ended (``ended``: its last
+  step terminated or truncated it, or it has not begun; a world's ``step`` then needs a ``reset``), and its
+  contact record (``peak_contact``: the largest contact force, N; ``sum_contact_sq``: the sum of its squares, N^2);
 * the step's measures (``posture`` (N, 3): RUD, FE, PS, rad; ``defl`` (N, 3): the spring deflections, rad;
   ``energy``: their stored energy, J; ``contact``: the task's contact force, N; ``closure``: the period's
   loop-closure opening, m or rad);
@@ -32,7 +33,7 @@ import numpy as np
 class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
-    FIELDS = ("step", "t", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
+    FIELDS = ("step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
               "references", "target", "prev_action", "noise", "nz", "history_error", "history_energy",
               "history_contact")
     __slots__ = FIELDS
@@ -41,6 +42,7 @@ class EpisodeState:
         """``n`` worlds whose episodes last ``steps`` control steps, with actions of ``n_act`` numbers."""
         self.step = np.zeros(n, dtype=np.int64)
         self.t = np.zeros(n)
+        self.ended = np.ones(n, dtype=bool)
         self.peak_contact = np.zeros(n)
         self.sum_contact_sq = np.zeros(n)
         self.posture = np.zeros((n, 3))
@@ -125,6 +127,14 @@ class EpisodeStateMixin:
     @_t.setter
     def _t(self, value: float) -> None:
         self._ep.t[0] = value
+
+    @property
+    def _needs_reset(self) -> bool:
+        return self._ep.ended.item(0)
+
+    @_needs_reset.setter
+    def _needs_reset(self, value: bool) -> None:
+        self._ep.ended[0] = value
 
     @property
     def _peak_contact(self) -> float:
