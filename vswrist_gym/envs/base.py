@@ -45,7 +45,7 @@ from ..stiffness import stored_energy
 from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
 from .config import EnvConfigError, load_env_config, merge, validate_task
 from .ending import episode_end, restart_failed, step_failures
-from .episode import EpisodeState, EpisodeStateMixin, record_contact, record_history, tick
+from .episode import EpisodeState, EpisodeStateMixin, held_substeps, record_contact, record_history, tick
 from .hooks import TaskHooks
 from .observations import ObservationsMixin
 from .pickling import PicklingMixin
@@ -289,13 +289,14 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         self._before_physics(self._t)
 
     def _advance(self) -> None:
-        theta = self._theta
+        theta, ep = self._theta, self._ep
         self._failure = None
         try:
-            if self._latency > 0.0 and self._theta_prev is not None:
-                self._advance_physics(self._latency, True)
+            if held_substeps(ep.latency.item(0), ep.step.item(0)):
+                latency = self._latency
+                self._advance_physics(latency, True)
                 self.sim.set_motor_references(theta)
-                self._advance_physics(self.ctrl_dt - self._latency, False)
+                self._advance_physics(self.ctrl_dt - latency, False)
             else:
                 self.sim.set_motor_references(theta)
                 self._advance_physics(self.ctrl_dt, True)
@@ -348,9 +349,8 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         return obs, float(reward), terminated, truncated, info
 
     def _tick(self) -> tuple[int, float]:
-        """The step's clock after the physics (``episode.tick``, as a batch's over its worlds): the references
-        just run become the previous ones (actuation latency), and the step count and time advance; returns them."""
-        self._theta_prev = self._theta
+        """The step's clock after the physics (``episode.tick``, as a batch's over its worlds): the step count and
+        time advance; returns them."""
         ep = self._ep
         k, t = tick(ep.step.item(0), self.ctrl_dt)
         ep.step[0] = k

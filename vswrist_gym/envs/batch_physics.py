@@ -22,6 +22,7 @@ import numpy as np
 
 from ..batch_sim import DIVERGED, OK
 from ..sim import DIVERGED_MESSAGE
+from .episode import held_substeps
 
 # chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
 # MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and shorten the last chunk, whose
@@ -68,13 +69,8 @@ class PhysicsMixin:
             self._attach(stale)
         if not bsim.steps(idx):
             return False
-        # actuation latency (drawn at each reset): the first period after a reset has no previous references
-        lat = [e._latency for e in (envs[i] for i in idx)]
-        if any(lat):
-            bsim.set_latency(idx, [int(round(x / envs[i].sim.timestep)) if x > 0.0 and envs[i]._theta_prev is not None
-                                   else 0 for i, x in zip(idx, lat)])
-        else:
-            bsim.set_latency(idx, 0)
+        ep = self._ep
+        bsim.set_latency(idx, held_substeps(ep.latency[idx], ep.step[idx]))
         return True
 
     def _after_native(self, worlds: list, idx: list, status: np.ndarray) -> None:

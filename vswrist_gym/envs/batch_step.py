@@ -124,11 +124,10 @@ class ArrayStepMixin:
         if noise:
             NZ = ep.noise[ids, steps]
             ep.put(ids, nz=NZ)
-        # world by world (the single env's step up to ``_measure``'s contact hook): the references just run become
-        # the previous ones, the task's contact force; and what the arrays below need of each world's state
+        # world by world (the single env's step up to ``_measure``'s contact hook): the task's contact force, and
+        # what the arrays below need of each world's state
         contact, K, d0, lam = [], [], [], []
         for e in worlds:
-            e._theta_prev = e._theta
             sp = e.params.spring
             K.append(sp.K)
             d0.append(sp.delta0)

@@ -3,6 +3,8 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
 
 ``EpisodeState`` holds
 
+* the episode's actuation latency (``latency``: the substeps at the start of each control period that still run
+  on the previous motor references, drawn at reset; ``held_substeps``);
 * the episode's clock (``step``: control steps taken, ``t``: time, s), whether it has ended (``ended``: its last
   step terminated or truncated it, or it has not begun; a world's ``step`` then needs a ``reset``), and its
   contact record (``peak_contact``: the largest contact force, N; ``sum_contact_sq``: the sum of its squares, N^2);
@@ -33,13 +35,14 @@ import numpy as np
 class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
-    FIELDS = ("step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
+    FIELDS = ("latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
               "references", "target", "prev_action", "noise", "nz", "history_error", "history_energy",
               "history_contact")
     __slots__ = FIELDS
 
     def __init__(self, n: int, steps: int, n_act: int):
         """``n`` worlds whose episodes last ``steps`` control steps, with actions of ``n_act`` numbers."""
+        self.latency = np.zeros(n, dtype=np.int64)
         self.step = np.zeros(n, dtype=np.int64)
         self.t = np.zeros(n)
         self.ended = np.ones(n, dtype=bool)
@@ -96,6 +99,13 @@ def tick(step, dt: float):
     return k, k * dt
 
 
+def held_substeps(latency, step):
+    """The substeps of the coming control period that run on the previous motor references, of worlds with
+    ``latency`` (substeps) that have taken ``step`` steps: none in an episode's first period, which has no previous
+    references (the reset's settling ran on the initial ones)."""
+    return latency * (step > 0)
+
+
 def record_contact(peak, sum_sq, contact):
     """The contact record after a step with ``contact`` (N): (the largest force so far, the sum of the squares).
     The peak keeps its value unless the new force exceeds it (a NaN force leaves it as it was)."""
@@ -111,6 +121,11 @@ def record_history(ep: EpisodeState, ids, steps, err) -> None:
 class EpisodeStateMixin:
     """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``): the numbers of one world read
     as Python numbers, as the tasks' hooks and the info read them, and its vectors as (3,) views of its row."""
+
+    @property
+    def _latency(self) -> float:
+        """The episode's actuation latency (s)."""
+        return self._ep.latency.item(0) * float(self.model.opt.timestep)
 
     @property
     def _step(self) -> int:

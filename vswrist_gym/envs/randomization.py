@@ -42,7 +42,7 @@ class RandomizationMixin:
         # latency in whole physics steps, at most one step short of the control period
         dt = float(self.model.opt.timestep)
         steps = int(round(float(rng.uniform(*lat["range"])) / dt)) if lat["enabled"] else 0
-        self._latency = min(steps, self.n_substeps - 1) * dt
+        self._ep.latency[0] = min(steps, self.n_substeps - 1)
         noise = rnd["sensor_noise"]
         self._noise_std = {k: float(noise[k]) for k in ("posture", "posture_rate", "force", "torque")} \
             if noise["enabled"] else None

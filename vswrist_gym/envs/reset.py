@@ -30,8 +30,7 @@ class ResetMixin:
         self._peak_contact = 0.0
         self._sum_contact_sq = 0.0
         self._noise_std = None
-        self._latency = 0.0
-        self._theta_prev = None
+        self._ep.latency[0] = 0
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self._reset_begin(seed)
@@ -81,7 +80,6 @@ class ResetMixin:
         self._closure = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
             self.sim.loop_closure_error()
         self._needs_reset = False
-        self._theta_prev = None
         self._draw_noise_table()
         if self.cfg["action_mode"] == "residual":
             self._prev_action = 0.0
