@@ -119,6 +119,12 @@ def check_actions(actions, n: int, shape: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def clip_action(a):
+    """Checked actions (finite: ``check_action``/``check_actions``), one world's or a batch's, clipped to [-1, 1]
+    (= ``np.clip``), as a new array."""
+    return np.minimum(np.maximum(a, -1.0), 1.0)
+
+
 class ActionsMixin:
     """The action side of ``VSWristEnv``: command maps built at construction, action -> motor references."""
 

@@ -42,7 +42,7 @@ from gymnasium.error import ResetNeeded
 
 from ..params import load_params
 from ..stiffness import stored_energy
-from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action
+from .actions import ActionsMixin, PostureMap, StiffnessMap, check_action, clip_action
 from .config import EnvConfigError, load_env_config, merge, validate_task
 from .ending import episode_end, restart_failed, step_failures
 from .episode import EpisodeState, EpisodeStateMixin, held_substeps, record_contact, record_history, tick
@@ -282,14 +282,15 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
     # concurrently) and ``_finish_step`` (measures, reward, observation, info).
     def _begin_step(self, a: np.ndarray) -> None:
         """``a``: a checked action (``check_action``); clipped here to [-1, 1]."""
-        a = np.maximum(a, -1.0)  # = np.clip(a, -1, 1) (a is finite), a new array: the caller's is untouched
-        np.minimum(a, 1.0, out=a)
-        self._a = a
-        self._theta = self._motor_refs(a)
+        a = clip_action(a)
+        ep = self._ep
+        ep.action[0] = a
+        ep.theta[0] = self._motor_refs(a)
         self._before_physics(self._t)
 
     def _advance(self) -> None:
-        theta, ep = self._theta, self._ep
+        ep = self._ep
+        theta = ep.theta[0]
         self._failure = None
         try:
             if held_substeps(ep.latency.item(0), ep.step.item(0)):
@@ -321,7 +322,8 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
             self.sim.step(duration, restart_peak=False)
 
     def _finish_step(self):
-        a, failure, ep = self._a, self._failure, self._ep
+        failure, ep = self._failure, self._ep
+        a = ep.action[0]
         k, t = self._tick()
         self._measure()
         failures = step_failures([failure], ep.posture, ep.defl, [t])

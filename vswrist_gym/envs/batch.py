@@ -286,9 +286,8 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         native = bool(worlds) and self._native_ready(idx)
         if not native:
             self._start_resets(reset_now, started)
-        A = None
         if worlds and not native:
-            A, theta = self._begin(worlds, ids, acts[idx])
+            self._begin(worlds, ids, acts[idx])
         finished = None
         if native:  # the array step's _begin, then the physics, beside which the resets begin
             finished = self._native_step(worlds, idx, acts[idx], started if same_step else None,
@@ -303,7 +302,7 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         extras: dict[int, dict] = {}
         cols: dict[str, np.ndarray] = {}
         if worlds:
-            o, r, te, tr, cols, failures = finished if finished is not None else self._finish(worlds, ids, A)
+            o, r, te, tr, cols, failures = finished if finished is not None else self._finish(worlds, ids)
             obs[idx], rew[idx], term[idx], trunc[idx] = o, r, te, tr
             for k, msg in failures.items():
                 extras[idx[k]] = {"simulation_error": msg}

@@ -115,25 +115,22 @@ class PhysicsMixin:
         bsim = self.batch_sim
         G = np.empty((L, bsim.width))  # the gathered reads (``batch_sim.gather_plan``)
         parts: list = []  # (positions in idx, _finish's results for those worlds)
-        A = None  # the clipped actions, once ``_begin`` has run for every world
 
         def finish(pos: list) -> None:
             ws = [worlds[p] for p in pos]
             self._after_native(ws, [idx[p] for p in pos], status[pos])
-            part = self._finish(ws, widx[pos], A[pos], G[pos])
+            part = self._finish(ws, widx[pos], G[pos])
             parts.append((pos, part))
             if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
                 self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
 
-        def begin(lo: int, hi: int) -> tuple[np.ndarray | None, np.ndarray]:
-            """``_begin`` of live worlds lo..hi-1: their clipped actions and motor references (hi - lo, 4)."""
-            ws, ids = worlds[lo:hi], idx[lo:hi]
-            a, theta = self._begin(ws, widx[lo:hi], acts[lo:hi])
-            return a, self._motor_matrix(ws, ids, theta)
+        def begin(lo: int, hi: int) -> np.ndarray:
+            """``_begin`` of live worlds lo..hi-1: their motor references (hi - lo, 4)."""
+            return self._motor_matrix(idx[lo:hi], self._begin(worlds[lo:hi], widx[lo:hi], acts[lo:hi]))
 
         k = min(CHUNKS_PER_THREAD * self.threads, L // MIN_CHUNK_WORLDS)
         if self.threads == 1 or k < 2:
-            A, TH = begin(0, L)
+            TH = begin(0, L)
             if meanwhile is not None:
                 meanwhile()
             bsim.advance(widx, TH, status, seconds, G)
@@ -141,9 +138,8 @@ class PhysicsMixin:
         else:
             bounds = np.linspace(0, L, k + 1).round().astype(np.int32)
             head = int(bounds[self.threads - 1])  # one chunk for each pool thread
-            A1, TH1 = begin(0, head)
             TH = np.empty((L, 4))
-            TH[:head] = TH1
+            TH[:head] = begin(0, head)
             pool = bsim.pool(self.threads - 1)
             bsim.submit(pool, widx, TH, status, seconds, bounds, self.threads - 1, G)
             todo = np.ones(k, dtype=bool)
@@ -151,11 +147,10 @@ class PhysicsMixin:
                 if meanwhile is not None:
                     meanwhile()
                 try:
-                    A2, TH[head:] = begin(head, L)
+                    TH[head:] = begin(head, L)
                 except BaseException:
                     self._started = False  # the first chunks stepped, the others did not: reset() first
                     raise
-                A = np.concatenate([A1, A2])
                 pool.release()
                 # the last unclaimed chunk of each pool thread stays for it, so that the first _finish (most of
                 # the worlds) runs beside physics
@@ -188,10 +183,10 @@ class PhysicsMixin:
                 {key: np.concatenate([p[4][key] for _, p in parts])[inv] for key in parts[0][1][4]}, failures)
 
     @staticmethod
-    def _motor_matrix(worlds: list, idx: list, theta: np.ndarray | None) -> np.ndarray:
-        """The live worlds' motor references (L, 4), float64 C-contiguous, checked finite as
+    def _motor_matrix(idx: list, theta: np.ndarray) -> np.ndarray:
+        """The live worlds' (``idx``) motor references ``theta`` (L, 4), float64 C-contiguous, checked finite as
         ``WristSim.set_motor_references`` checks them."""
-        TH = np.ascontiguousarray(theta if theta is not None else [e._theta for e in worlds], dtype=np.float64)
+        TH = np.ascontiguousarray(theta, dtype=np.float64)
         if not np.isfinite(TH).all():
             k = int(np.flatnonzero(~np.isfinite(TH).all(axis=1))[0])
             raise ValueError(f"env {idx[k]}: motor references must be 4 finite angles in rad (A, B, C, PS), got "

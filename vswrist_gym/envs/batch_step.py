@@ -1,10 +1,11 @@
 """The array step: ``VSWristEnv._begin_step`` and ``_finish_step`` of a batch's live worlds, over arrays
 (``VSWristVectorEnv``'s mixin), for every batch, one world or many.
 
-Before the physics: action clipping and maps, and the analytic controller (modes ``posture_stiffness`` and
-``residual``: ``AnalyticController.step_batch``) over arrays of worlds; the compliance mode's LM dynamics and the
-``motor`` mode world by world; then the task's loads, ``_before_physics_worlds`` (over arrays of worlds where the
-task writes them so: Drill, LoadHold; else each world's ``_before_physics``).
+Before the physics: action clipping and maps, the ``motor`` mode's map and the analytic controller (modes
+``posture_stiffness`` and ``residual``: ``AnalyticController.step_batch``) over arrays of worlds, the compliance
+mode's LM dynamics world by world, into the episode state's actions and motor references (``episode``); then the
+task's loads, ``_before_physics_worlds`` (over arrays of worlds where the task writes them so: Drill, LoadHold; else
+each world's ``_before_physics``).
 
 After the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool wrench: what
 ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics threads, or in
@@ -23,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..stiffness import SpringLaw, stored_energy
+from .actions import clip_action
 from .ending import episode_end, restart_failed, step_failures
 from .episode import record_contact, record_history, tick
 from .observations import observe
@@ -76,32 +78,31 @@ class BatchMeasures:
 class ArrayStepMixin:
     """``_begin`` and ``_finish`` of ``VSWristVectorEnv``: the single env's step phases over arrays of worlds."""
 
-    def _begin(self, worlds: list, ids: np.ndarray, acts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``, over
-        arrays where the mode runs the controller with a commanded lam; ``ids``: their indices in the batch);
-        returns the clipped actions and the motor references (L, 4) where the controller computed them over arrays
-        (else None)."""
-        A = np.maximum(acts, -1.0)
-        np.minimum(A, 1.0, out=A)
+    def _begin(self, worlds: list, ids: np.ndarray, acts: np.ndarray) -> np.ndarray:
+        """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``; ``ids``: their
+        indices in the batch), over arrays except the compliance mode's LM dynamics, world by world: the clipped
+        actions and the motor references (L, 4) go into the episode state; returns the references."""
+        A = clip_action(acts)
         first = worlds[0]
         mode = self._mode
+        ep = self._ep
         if mode in ("posture_stiffness", "residual"):
-            target = self._ep.target[ids] if mode == "residual" else None
+            target = ep.target[ids] if mode == "residual" else None
             ref, lam = first._posture_command(A, target)
             # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
             theta, lam, u = first.ctrl.step_batch(ref, lam)
-            for e, a, th, (ay, az, ps), lam_k in zip(worlds, A, theta, u.tolist(), lam.tolist()):
+            for e, (ay, az, ps), lam_k in zip(worlds, u.tolist(), lam.tolist()):
                 e.ctrl.set_command(ay, az, ps, lam_k)
-                e._a, e._theta = a, th
-        else:  # motor (no controller) and posture_compliance (LM dynamics per world)
-            theta = None
-            for e, a in zip(worlds, A):
-                e._a, e._theta = a, e._motor_refs(a)
+        elif mode == "motor":  # no controller: every world's map is the same (the nominal range of motion)
+            theta = first._motor_refs(A)
+        else:  # posture_compliance: the LM dynamics of each world's controller
+            theta = np.array([e._motor_refs(a) for e, a in zip(worlds, A)])
+        ep.put(ids, action=A, theta=theta)
         if self._hook_before:
-            type(first)._before_physics_worlds(worlds, self._ep.t[ids])
-        return A, theta
+            type(first)._before_physics_worlds(worlds, ep.t[ids])
+        return theta
 
-    def _finish(self, worlds: list, ids: np.ndarray, A: np.ndarray, G: np.ndarray | None = None):
+    def _finish(self, worlds: list, ids: np.ndarray, G: np.ndarray | None = None):
         """``VSWristEnv._finish_step`` of the live worlds (``ids``: their indices in the batch): the simulators'
         reads come gathered in ``G`` (rows of ``batch_sim.gather_plan``, filled by the compiled advance; None:
         gathered here), the task hooks run world by world (in the single env's order, so each draws its noise from
@@ -117,6 +118,7 @@ class ArrayStepMixin:
         hook_contact = self._hook_contact
         # the clock (``VSWristEnv._tick``) of every world, before any task hook reads it
         ep = self._ep
+        A = ep.action[ids]
         steps, t = tick(ep.step[ids], dt)
         ep.put(ids, step=steps, t=t)
         # the observation's sensor noise (``_draw_noise``), before the hooks: a task's own terms may read it

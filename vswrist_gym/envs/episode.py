@@ -3,6 +3,8 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
 
 ``EpisodeState`` holds
 
+* the step under way: its action (``action`` (N, action dim): clipped to [-1, 1]) and the motor references it
+  commands (``theta`` (N, 4): A, B, C, PS, rad);
 * the episode's actuation latency (``latency``: the substeps at the start of each control period that still run
   on the previous motor references, drawn at reset; ``held_substeps``);
 * the episode's clock (``step``: control steps taken, ``t``: time, s), whether it has ended (``ended``: its last
@@ -35,13 +37,15 @@ import numpy as np
 class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
-    FIELDS = ("latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
+    FIELDS = ("action", "theta", "latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
               "references", "target", "prev_action", "noise", "nz", "history_error", "history_energy",
               "history_contact")
     __slots__ = FIELDS
 
     def __init__(self, n: int, steps: int, n_act: int):
         """``n`` worlds whose episodes last ``steps`` control steps, with actions of ``n_act`` numbers."""
+        self.action = np.zeros((n, n_act))
+        self.theta = np.zeros((n, 4))
         self.latency = np.zeros(n, dtype=np.int64)
         self.step = np.zeros(n, dtype=np.int64)
         self.t = np.zeros(n)
@@ -121,6 +125,14 @@ def record_history(ep: EpisodeState, ids, steps, err) -> None:
 class EpisodeStateMixin:
     """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``): the numbers of one world read
     as Python numbers, as the tasks' hooks and the info read them, and its vectors as (3,) views of its row."""
+
+    @property
+    def _a(self) -> np.ndarray:
+        return self._ep.action[0]
+
+    @property
+    def _theta(self) -> np.ndarray:
+        return self._ep.theta[0]
 
     @property
     def _latency(self) -> float:
