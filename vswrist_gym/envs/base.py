@@ -168,6 +168,13 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         # neither the task nor the observation reads sensors: a step updates only poses and velocities
         self._light_sync = not (self.reads_sensors or "tool_wrench" in cfg["observation"])
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.ctrl_dt)))
+        self.episode_steps = int(math.ceil(cfg["episode_s"] / self.ctrl_dt - 1e-9))
+        mode = cfg["action_mode"]
+        n_act = 6 if mode == "posture_compliance" else 4
+        # the episode state (``episode``), before the simulator whose springs it holds; a batch makes it a row of its
+        # own (``episode.share``). It starts ended: step() before the first reset() is refused, as after an
+        # episode's end
+        self._ep = EpisodeState(1, self.episode_steps, n_act)
 
         self._import_simulator()
         self._build_sim(self.nominal_params)
@@ -178,10 +185,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         rom = self.nominal_params.range_of_motion
         self.posture_map = PostureMap([rom.rud_min, rom.fe_min, rom.ps_min], [rom.rud_max, rom.fe_max, rom.ps_max])
         self.stiffness_map = StiffnessMap(self._lam_max(), self.nominal_params.spring.K, cfg["stiffness_map"])
-        self.episode_steps = int(math.ceil(cfg["episode_s"] / self.ctrl_dt - 1e-9))
 
-        mode = cfg["action_mode"]
-        n_act = 6 if mode == "posture_compliance" else 4
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n_act,), dtype=np.float32)
         if mode == "motor":
             self._motor_lo, self._motor_hi = self._motor_range()
@@ -223,9 +227,6 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         if cfg["render"]["camera"] not in cams:
             raise EnvConfigError(f"'render.camera' = {cfg['render']['camera']!r} is not a camera of the model; "
                                  f"choose one of {cams}")
-        # a batch makes it a row of its own (``episode.share``); it starts ended: step() before the first reset() is
-        # refused, as after an episode's end
-        self._ep = EpisodeState(1, self.episode_steps, self.action_space.shape[0])
         self._reset_state()
 
     def _import_simulator(self) -> None:
@@ -246,6 +247,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
     def _build_sim(self, params) -> None:
         """The simulator with ``params`` and what the step reads of its model (substeps, ids, nominal values)."""
         self.params = params
+        self._ep.put(0, spring_K=params.spring.K, spring_delta0=params.spring.delta0)
         self._make_sim(params)
         dt = float(self.model.opt.timestep)
         n = self.ctrl_dt / dt

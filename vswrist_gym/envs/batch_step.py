@@ -126,15 +126,9 @@ class ArrayStepMixin:
         if noise:
             NZ = ep.noise[ids, steps]
             ep.put(ids, nz=NZ)
-        # world by world (the single env's step up to ``_measure``'s contact hook): the task's contact force, and
-        # what the arrays below need of each world's state
-        contact, K, d0, lam = [], [], [], []
-        for e in worlds:
-            sp = e.params.spring
-            K.append(sp.K)
-            d0.append(sp.delta0)
-            lam.append(e.ctrl.lam)
-            contact.append(e._contact_force() if hook_contact else 0.0)
+        # world by world: the controllers' internal torque, the task's contact force (``_measure``'s hook)
+        lam = [e.ctrl.lam for e in worlds]
+        contact = [e._contact_force() for e in worlds] if hook_contact else [0.0] * L
         sims = [e.sim for e in worlds]
         redo = []
         for k in range(L):
@@ -156,7 +150,7 @@ class ArrayStepMixin:
             P[k], D[k], contact[k] = e._posture, e._defl, e._contact
             G[k] = bsim.gather([e.sim])[0]
             Q[k] = bsim.qpos(G[k:k + 1])[0]
-        law = SpringLaw(np.array(K)[:, None], np.array(d0)[:, None])  # each world's own springs
+        law = SpringLaw(ep.spring_K[ids][:, None], ep.spring_delta0[ids][:, None])  # each world's own springs
         energy = stored_energy(D, law)
         T = ep.references[ids, steps]  # the step's row of each world's reference table
         err = wrap_angle(P - T)

@@ -3,6 +3,8 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
 
 ``EpisodeState`` holds
 
+* the world's springs (``spring_K``, N m; ``spring_delta0``, rad: the sinh law's constants, ``stiffness.SpringLaw``;
+  each world's own where randomisation draws them at reset);
 * the step under way: its action (``action`` (N, action dim): clipped to [-1, 1]) and the motor references it
   commands (``theta`` (N, 4): A, B, C, PS, rad);
 * the episode's actuation latency (``latency``: the substeps at the start of each control period that still run
@@ -37,13 +39,15 @@ import numpy as np
 class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
-    FIELDS = ("action", "theta", "latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
+    FIELDS = ("spring_K", "spring_delta0", "action", "theta", "latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
               "references", "target", "prev_action", "noise", "nz", "history_error", "history_energy",
               "history_contact")
     __slots__ = FIELDS
 
     def __init__(self, n: int, steps: int, n_act: int):
         """``n`` worlds whose episodes last ``steps`` control steps, with actions of ``n_act`` numbers."""
+        self.spring_K = np.zeros(n)
+        self.spring_delta0 = np.zeros(n)
         self.action = np.zeros((n, n_act))
         self.theta = np.zeros((n, 4))
         self.latency = np.zeros(n, dtype=np.int64)
