@@ -70,6 +70,16 @@ class EpisodeState:
         self.history_energy = np.zeros((n, steps))
         self.history_contact = np.zeros((n, steps))
 
+    # what a new episode starts from zero, before its reset's draws (the latency is drawn after this); the other
+    # fields are the reset's (references, noise, springs) or each step's, and the history is read up to ``step``
+    CLEARED = ("step", "t", "latency", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact",
+               "closure", "target", "prev_action")
+
+    def clear(self, rows) -> None:
+        """The state a new episode starts from, in the worlds ``rows`` (an index or an array of them)."""
+        for f in self.CLEARED:
+            getattr(self, f)[rows] = 0
+
     def row(self, i: int) -> EpisodeState:
         """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
         out = EpisodeState.__new__(EpisodeState)

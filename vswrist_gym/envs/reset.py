@@ -18,19 +18,8 @@ class ResetMixin:
     """``reset`` and its phases; ``_reset_state``: the episode state a new episode starts from."""
 
     def _reset_state(self) -> None:
-        self._step = 0
-        self._t = 0.0
-        self._prev_action = 0.0
-        self._target = 0.0
-        self._posture = np.zeros(3)
-        self._defl = np.zeros(3)
-        self._energy = 0.0
-        self._contact = 0.0
-        self._closure = 0.0
-        self._peak_contact = 0.0
-        self._sum_contact_sq = 0.0
+        self._ep.clear(0)
         self._noise_std = None
-        self._ep.latency[0] = 0
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self._reset_begin(seed)
