@@ -333,15 +333,15 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         # opening is not there to read: ``restart_failed`` makes it inf)
         closure = [math.inf if failures else self.sim.loop_closure_peak()]
         restart_failed([self], failures, closure)
-        self._closure = closure[0]
+        ep.closure[0] = closure[0]
         failure = failures.get(0)
-        ep.target[0] = ep.references[0, k]
-        err = wrap_angle(ep.posture[0] - ep.target[0])
+        target = ep.target[0] = ep.references[0, k]
+        err = wrap_angle(ep.posture[0] - target)
         self._record_step(err)
         weighted, reward = self._reward(err, a, failure)
         ep.prev_action[0] = a  # rounded to float32, as the observation has it
         terminated = failure is not None
-        time_up, cut, truncated = episode_end(terminated, k, self.episode_steps, self._closure,
+        time_up, cut, truncated = episode_end(terminated, k, self.episode_steps, closure[0],
                                               self._closure_warn, self._closure_truncate)
         truncated = bool(truncated)
         ep.ended[0] = terminated or truncated
@@ -365,8 +365,9 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         """The episode's record after a step's measures: the contact force's peak and sum of squares
         (``episode.record_contact``, as a batch's over its worlds), and the history."""
         ep = self._ep
-        self._peak_contact, self._sum_contact_sq = record_contact(self._peak_contact, self._sum_contact_sq,
-                                                                  self._contact)
+        peak, sum_sq = record_contact(ep.peak_contact.item(0), ep.sum_contact_sq.item(0), ep.contact.item(0))
+        ep.peak_contact[0] = peak
+        ep.sum_contact_sq[0] = sum_sq
         record_history(ep, 0, ep.step.item(0), err)
 
     def _measure(self) -> None:

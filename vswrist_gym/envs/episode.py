@@ -133,7 +133,10 @@ def record_contact(peak, sum_sq, contact):
 def record_history(ep: EpisodeState, ids, steps, err) -> None:
     """The history of the worlds ``ids`` (an array of rows, or one row) after their step ``steps`` (its count): the
     step's posture error ``err`` and their stored energy and contact force (their measures, already stored)."""
-    ep.put((ids, steps - 1), history_error=err, history_energy=ep.energy[ids], history_contact=ep.contact[ids])
+    j = steps - 1
+    ep.history_error[ids, j] = err
+    ep.history_energy[ids, j] = ep.energy[ids]
+    ep.history_contact[ids, j] = ep.contact[ids]
 
 
 class EpisodeStateMixin:

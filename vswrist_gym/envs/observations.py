@@ -87,9 +87,10 @@ class WorldMeasures:
 
     def __init__(self, env):
         self.env = env
-        self.posture, self.deflections, self.law = env._posture, env._defl, env.params
-        self.contact, self.lam, self.prev_action = env._contact, env.ctrl.lam, env._prev_action
-        self.target, self.step, self.time, self.noise = env._target, env._step, env._t, env._nz
+        ep = env._ep  # this world's row of the episode state
+        self.posture, self.deflections, self.law = ep.posture[0], ep.defl[0], env.params
+        self.contact, self.lam, self.prev_action = ep.contact.item(0), env.ctrl.lam, ep.prev_action[0]
+        self.target, self.step, self.time, self.noise = ep.target[0], ep.step.item(0), ep.t.item(0), env._nz
 
     def each(self, name: str):
         return getattr(self.env, name)

@@ -83,19 +83,22 @@ class RewardsMixin:
 
     def _reward(self, err: np.ndarray, a: np.ndarray, failure: str | None) -> tuple[dict, float]:
         """The weighted terms ``reward_<name>`` and their sum."""
-        raw = common_reward_terms(self._tracking_error(err), self._energy, a, self._prev_action,
+        ep = self._ep
+        raw = common_reward_terms(self._tracking_error(err), ep.energy.item(0), a, ep.prev_action[0],
                                   failure is not None, self.cfg["scales"])
         raw.update(self._task_reward_terms(err))
         weighted, reward = weigh(raw, self.reward_weights)
         return {k: float(v) for k, v in weighted.items()}, float(reward)
 
     def _info(self, weighted: dict, final: bool, err: np.ndarray | None = None) -> dict:
+        ep = self._ep
         if err is None:
-            err = wrap_angle(self._posture - self._target)
+            err = wrap_angle(ep.posture[0] - ep.target[0])
         info = dict(weighted)
-        metrics = step_metrics(err, self._contact, self._peak_contact, self._sum_contact_sq, self._step,
-                               self._energy, self.ctrl.lam, self._closure, self._closure_warn, self._t,
-                               bool(self._success()) if final else False)
+        # this world's row, as Python numbers
+        metrics = step_metrics(err, ep.contact.item(0), ep.peak_contact.item(0), ep.sum_contact_sq.item(0),
+                               ep.step.item(0), ep.energy.item(0), self.ctrl.lam, ep.closure.item(0),
+                               self._closure_warn, ep.t.item(0), bool(self._success()) if final else False)
         for k, v in metrics.items():  # one world's info holds Python numbers
             info[k] = bool(v) if k in _FLAGS else float(v)
         extra = self._task_info()
