@@ -288,6 +288,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         ep = self._ep
         ep.action[0] = a
         ep.theta[0] = self._motor_refs(a)
+        ep.lam[0] = self.ctrl.lam
         self._before_physics(self._t)
 
     def _advance(self) -> None:

@@ -93,11 +93,13 @@ class ArrayStepMixin:
             theta, lam, u = first.ctrl.step_batch(ref, lam)
             for e, (ay, az, ps), lam_k in zip(worlds, u.tolist(), lam.tolist()):
                 e.ctrl.set_command(ay, az, ps, lam_k)
-        elif mode == "motor":  # no controller: every world's map is the same (the nominal range of motion)
-            theta = first._motor_refs(A)
+        elif mode == "motor":  # no controller: every world's map is the same (the nominal range of motion), and
+            # its internal torque stays the reset's
+            theta, lam = first._motor_refs(A), ep.lam[ids]
         else:  # posture_compliance: the LM dynamics of each world's controller
             theta = np.array([e._motor_refs(a) for e, a in zip(worlds, A)])
-        ep.put(ids, action=A, theta=theta)
+            lam = np.array([e.ctrl.lam for e in worlds])
+        ep.put(ids, action=A, theta=theta, lam=lam)
         if self._hook_before:
             type(first)._before_physics_worlds(worlds, ep.t[ids])
         return theta
@@ -126,8 +128,7 @@ class ArrayStepMixin:
         if noise:
             NZ = ep.noise[ids, steps]
             ep.put(ids, nz=NZ)
-        # world by world: the controllers' internal torque, the task's contact force (``_measure``'s hook)
-        lam = [e.ctrl.lam for e in worlds]
+        # world by world: the task's contact force (``_measure``'s hook)
         contact = [e._contact_force() for e in worlds] if hook_contact else [0.0] * L
         sims = [e.sim for e in worlds]
         redo = []
@@ -162,7 +163,7 @@ class ArrayStepMixin:
         ep.put(ids, posture=P, defl=D, energy=energy, contact=contact_a, closure=closure_a, peak_contact=peak,
                sum_contact_sq=sumsq, target=T)
         record_history(ep, ids, steps, err)
-        lam = np.array(lam)
+        lam = ep.lam[ids]
         prev = ep.prev_action[ids]
         terminated = np.zeros(L, dtype=bool)
         terminated[list(failures)] = True

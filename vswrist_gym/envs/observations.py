@@ -89,7 +89,7 @@ class WorldMeasures:
         self.env = env
         ep = env._ep  # this world's row of the episode state
         self.posture, self.deflections, self.law = ep.posture[0], ep.defl[0], env.params
-        self.contact, self.lam, self.prev_action = ep.contact.item(0), env.ctrl.lam, ep.prev_action[0]
+        self.contact, self.lam, self.prev_action = ep.contact.item(0), ep.lam.item(0), ep.prev_action[0]
         self.target, self.step, self.time, self.noise = ep.target[0], ep.step.item(0), ep.t.item(0), env._nz
 
     def each(self, name: str):

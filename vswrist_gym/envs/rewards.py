@@ -97,7 +97,7 @@ class RewardsMixin:
         info = dict(weighted)
         # this world's row, as Python numbers
         metrics = step_metrics(err, ep.contact.item(0), ep.peak_contact.item(0), ep.sum_contact_sq.item(0),
-                               ep.step.item(0), ep.energy.item(0), self.ctrl.lam, ep.closure.item(0),
+                               ep.step.item(0), ep.energy.item(0), ep.lam.item(0), ep.closure.item(0),
                                self._closure_warn, ep.t.item(0), bool(self._success()) if final else False)
         for k, v in metrics.items():  # one world's info holds Python numbers
             info[k] = bool(v) if k in _FLAGS else float(v)
