@@ -294,7 +294,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
     def _advance(self) -> None:
         ep = self._ep
         theta = ep.theta[0]
-        self._failure = None
+        ep.diverged[0] = False
         try:
             if held_substeps(ep.latency.item(0), ep.step.item(0)):
                 latency = self._latency
@@ -305,7 +305,8 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
                 self.sim.set_motor_references(theta)
                 self._advance_physics(self.ctrl_dt, True)
         except self._SimulationError as exc:
-            self._failure = str(exc)
+            ep.diverged[0] = True
+            self._sim_error = str(exc)
             return
         # bring what ``_measure`` reads up to date here, so that in a batch this C work runs on the threads too
         # (the same calls ``_measure`` would make; they find nothing stale afterwards)
@@ -325,11 +326,11 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
             self.sim.step(duration, restart_peak=False)
 
     def _finish_step(self):
-        failure, ep = self._failure, self._ep
+        ep = self._ep
         a = ep.action[0]
         k, t = self._tick()
         self._measure()
-        failures = step_failures([failure], ep.posture, ep.defl, [t])
+        failures = step_failures({0: self._sim_error} if ep.diverged.item(0) else {}, ep.posture, ep.defl, [t])
         # the physics' validity, read only where the physics did not fail (MuJoCo reset a diverged state, so its
         # opening is not there to read: ``restart_failed`` makes it inf)
         closure = [math.inf if failures else self.sim.loop_closure_peak()]

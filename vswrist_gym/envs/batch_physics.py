@@ -75,16 +75,17 @@ class PhysicsMixin:
 
     def _after_native(self, worlds: list, idx: list, status: np.ndarray) -> None:
         """What ``_advance`` leaves on each world and its simulator, from the compiled call's status."""
-        meter = self._meter_task
-        for e, i, st in zip(worlds, idx, self.batch_sim.settle([e.sim for e in worlds], status)):
-            if meter:
+        self.batch_sim.settle([e.sim for e in worlds], status)
+        odd = np.flatnonzero((status != OK) & (status != DIVERGED)).tolist()
+        if odd:
+            raise mujoco.FatalError(f"env {idx[odd[0]]}: MuJoCo raised an error inside this world's physics step")
+        diverged = status == DIVERGED
+        self._ep.put(idx, diverged=diverged)
+        for k in np.flatnonzero(diverged).tolist():
+            worlds[k]._sim_error = DIVERGED_MESSAGE
+        if self._meter_task:
+            for e in worlds:
                 e._period_ran = True
-            if st == OK:
-                e._failure = None
-            elif st == DIVERGED:
-                e._failure = DIVERGED_MESSAGE
-            else:
-                raise mujoco.FatalError(f"env {i}: MuJoCo raised an error inside this world's physics step")
 
     def _native_step(self, worlds: list, idx: list, acts: np.ndarray, started: dict | None = None, meanwhile=None):
         """The array step's ``_begin`` and the physics of the live worlds through the compiled advance

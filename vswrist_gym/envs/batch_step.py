@@ -116,7 +116,6 @@ class ArrayStepMixin:
         light = first._light_sync
         bsim = self.batch_sim
         noise = first._noise_std is not None
-        failed = [e._failure for e in worlds]
         hook_contact = self._hook_contact
         # the clock (``VSWristEnv._tick``) of every world, before any task hook reads it
         ep = self._ep
@@ -131,19 +130,17 @@ class ArrayStepMixin:
         # world by world: the task's contact force (``_measure``'s hook)
         contact = [e._contact_force() for e in worlds] if hook_contact else [0.0] * L
         sims = [e.sim for e in worlds]
-        redo = []
-        for k in range(L):
-            if failed[k] is not None:  # MuJoCo reset this world's state: bring it up to date as _measure does
-                if light:
-                    sims[k].sync_kinematics()
-                sims[k].posture()
-                redo.append(k)
+        redo = np.flatnonzero(ep.diverged[ids]).tolist()
+        for k in redo:  # MuJoCo reset this world's state: bring it up to date as _measure does
+            if light:
+                sims[k].sync_kinematics()
+            sims[k].posture()
         if G is None:
             G = bsim.gather(sims)
         elif redo:
             G[redo] = bsim.gather([sims[k] for k in redo])
         P, D, Q = bsim.read_posture(G)
-        failures = step_failures(failed, P, D, t)
+        failures = step_failures({k: worlds[k]._sim_error for k in redo}, P, D, t)
         closure = bsim.read_closure(G, sims)
         restart_failed(worlds, failures, closure)
         for k in failures:  # what the restarted worlds' observations read: their clean state (``_measure``'s row)

@@ -15,11 +15,11 @@ import math
 import numpy as np
 
 
-def step_failures(failed: list, posture: np.ndarray, deflections: np.ndarray, t: list) -> dict[int, str]:
-    """{world: why its physics failed this step} of N worlds: ``failed`` (N,) the simulators' reports (a message,
-    or None), else ``posture`` (N, 3) or ``deflections`` (N, 3) not finite (``t`` (N,): the worlds' times, s, for
-    the message). The simulators' reports come first, in world order."""
-    failures = {k: msg for k, msg in enumerate(failed) if msg is not None}
+def step_failures(reported: dict, posture: np.ndarray, deflections: np.ndarray, t: list) -> dict[int, str]:
+    """{world: why its physics failed this step} of N worlds: ``reported`` {world: the simulator's message} of the
+    worlds whose simulator reported a divergence (in world order), else ``posture`` (N, 3) or ``deflections``
+    (N, 3) not finite (``t`` (N,): the worlds' times, s, for the message). The simulators' reports come first."""
+    failures = dict(reported)
     # the usual step, where every number is finite, costs two whole-array tests; the worlds are told apart only
     # when one of them fails
     if not (np.isfinite(posture).all() and np.isfinite(deflections).all()):

@@ -9,6 +9,8 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
   commands (``theta`` (N, 4): A, B, C, PS, rad) and the internal torque the controller commands with them (``lam``,
   N m: the stiffness preload, as the observation and the info report it; the controller's own, recorded where the
   controller computes it, at each step and at reset);
+* whether the physics of the last control period diverged (``diverged``: MuJoCo found the state unstable and
+  reset it; the simulator's message stays with the world, ``_sim_error``; ``ending``);
 * the episode's actuation latency (``latency``: the substeps at the start of each control period that still run
   on the previous motor references, drawn at reset; ``held_substeps``);
 * the episode's clock (``step``: control steps taken, ``t``: time, s), whether it has ended (``ended``: its last
@@ -41,7 +43,7 @@ import numpy as np
 class EpisodeState:
     """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
 
-    FIELDS = ("spring_K", "spring_delta0", "action", "theta", "lam", "latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
+    FIELDS = ("spring_K", "spring_delta0", "action", "theta", "lam", "diverged", "latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
               "references", "target", "prev_action", "noise", "nz", "history_error", "history_energy",
               "history_contact")
     __slots__ = FIELDS
@@ -53,6 +55,7 @@ class EpisodeState:
         self.action = np.zeros((n, n_act))
         self.theta = np.zeros((n, 4))
         self.lam = np.zeros(n)
+        self.diverged = np.zeros(n, dtype=bool)
         self.latency = np.zeros(n, dtype=np.int64)
         self.step = np.zeros(n, dtype=np.int64)
         self.t = np.zeros(n)

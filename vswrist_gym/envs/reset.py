@@ -20,6 +20,7 @@ class ResetMixin:
     def _reset_state(self) -> None:
         self._ep.clear(0)
         self._noise_std = None
+        self._sim_error = None  # the simulator's message where the physics diverged (the episode state's flag)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self._reset_begin(seed)
