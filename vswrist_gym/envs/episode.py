@@ -31,8 +31,8 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
 
 A batch owns one of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch
 updates every world with one array operation and the world reads its own row, with nothing copied between them.
-The single env owns one of a world; its attributes (``_step``, ``_t``, ``_posture``, ...: ``EpisodeStateMixin``)
-read and write its row.
+The single env owns one of a world and writes its row; its attributes (``_step``, ``_t``, ``_posture``, ...:
+``EpisodeStateMixin``) read it, as the tasks' hooks do.
 """
 
 from __future__ import annotations
@@ -41,11 +41,12 @@ import numpy as np
 
 
 class EpisodeState:
-    """The (N,) arrays of N worlds' episode state (see the module docstring); a new one is all zeros."""
+    """The (N, ...) arrays of N worlds' episode state (see the module docstring); a new one is all zeros, its
+    episodes ended (none has begun)."""
 
-    FIELDS = ("spring_K", "spring_delta0", "action", "theta", "lam", "diverged", "latency", "step", "t", "ended", "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure",
-              "references", "target", "prev_action", "noise", "nz", "history_error", "history_energy",
-              "history_contact")
+    FIELDS = ("spring_K", "spring_delta0", "action", "theta", "lam", "diverged", "latency", "step", "t", "ended",
+              "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure", "references",
+              "target", "prev_action", "noise", "nz", "history_error", "history_energy", "history_contact")
     __slots__ = FIELDS
 
     def __init__(self, n: int, steps: int, n_act: int):
@@ -87,7 +88,7 @@ class EpisodeState:
             getattr(self, f)[rows] = 0
 
     def row(self, i: int) -> EpisodeState:
-        """World i's state: (1,) views of these arrays (writes to either are seen by both)."""
+        """World i's state: (1, ...) views of these arrays (writes to either are seen by both)."""
         out = EpisodeState.__new__(EpisodeState)
         for f in self.FIELDS:
             setattr(out, f, getattr(self, f)[i:i + 1])
@@ -146,8 +147,9 @@ def record_history(ep: EpisodeState, ids, steps, err) -> None:
 
 
 class EpisodeStateMixin:
-    """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``): the numbers of one world read
-    as Python numbers, as the tasks' hooks and the info read them, and its vectors as (3,) views of its row."""
+    """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``), read-only: the numbers of one
+    world as Python numbers, as the tasks' hooks read them, and its vectors as views of its row. The state is
+    written through ``_ep`` (``_nz`` excepted: a test replaces the noise draws through it)."""
 
     @property
     def _a(self) -> np.ndarray:
@@ -166,89 +168,45 @@ class EpisodeStateMixin:
     def _step(self) -> int:
         return self._ep.step.item(0)
 
-    @_step.setter
-    def _step(self, value: int) -> None:
-        self._ep.step[0] = value
-
     @property
     def _t(self) -> float:
         return self._ep.t.item(0)
-
-    @_t.setter
-    def _t(self, value: float) -> None:
-        self._ep.t[0] = value
 
     @property
     def _needs_reset(self) -> bool:
         return self._ep.ended.item(0)
 
-    @_needs_reset.setter
-    def _needs_reset(self, value: bool) -> None:
-        self._ep.ended[0] = value
-
     @property
     def _peak_contact(self) -> float:
         return self._ep.peak_contact.item(0)
-
-    @_peak_contact.setter
-    def _peak_contact(self, value: float) -> None:
-        self._ep.peak_contact[0] = value
 
     @property
     def _sum_contact_sq(self) -> float:
         return self._ep.sum_contact_sq.item(0)
 
-    @_sum_contact_sq.setter
-    def _sum_contact_sq(self, value: float) -> None:
-        self._ep.sum_contact_sq[0] = value
-
     @property
     def _posture(self) -> np.ndarray:
         return self._ep.posture[0]
-
-    @_posture.setter
-    def _posture(self, value) -> None:
-        self._ep.posture[0] = value
 
     @property
     def _defl(self) -> np.ndarray:
         return self._ep.defl[0]
 
-    @_defl.setter
-    def _defl(self, value) -> None:
-        self._ep.defl[0] = value
-
     @property
     def _energy(self) -> float:
         return self._ep.energy.item(0)
-
-    @_energy.setter
-    def _energy(self, value: float) -> None:
-        self._ep.energy[0] = value
 
     @property
     def _contact(self) -> float:
         return self._ep.contact.item(0)
 
-    @_contact.setter
-    def _contact(self, value: float) -> None:
-        self._ep.contact[0] = value
-
     @property
     def _closure(self) -> float:
         return self._ep.closure.item(0)
 
-    @_closure.setter
-    def _closure(self, value: float) -> None:
-        self._ep.closure[0] = value
-
     @property
     def _target(self) -> np.ndarray:
         return self._ep.target[0]
-
-    @_target.setter
-    def _target(self, value) -> None:
-        self._ep.target[0] = value
 
     @property
     def _references(self) -> np.ndarray:
@@ -257,10 +215,6 @@ class EpisodeStateMixin:
     @property
     def _prev_action(self) -> np.ndarray:
         return self._ep.prev_action[0]
-
-    @_prev_action.setter
-    def _prev_action(self, value) -> None:
-        self._ep.prev_action[0] = value
 
     @property
     def _noise(self) -> np.ndarray | None:

@@ -68,10 +68,10 @@ class ResetMixin:
         ep.target[0] = ep.references[0, 0]
         ep.lam[0] = self.ctrl.lam
         self._measure()
-        self._closure = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
+        ep.closure[0] = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
             self.sim.loop_closure_error()
-        self._needs_reset = False
+        ep.ended[0] = False
         self._draw_noise_table()
         if self.cfg["action_mode"] == "residual":
-            self._prev_action = 0.0
+            ep.prev_action[0] = 0.0
         return self._observation(), self._info({}, final=False)
