@@ -1,11 +1,14 @@
-"""A one-change-at-a-time hyperparameter search for Throw-v0's stiffness-track PPO on tuning seeds only.
-Protocol: NOTES.md, written before the first run.
+"""A one-change-at-a-time hyperparameter search for a task's stiffness-track PPO on tuning seeds only.
+Protocols: NOTES.md here (Throw-v0) and ../hammer_tuning/NOTES.md (Hammer-v1), each written before its first run.
 
     python experiments/throw_tuning/search.py
+    python experiments/throw_tuning/search.py --task VSWrist/Hammer-v1 --study experiments/hammer_tuning
 """
 
+import argparse
 import copy
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -19,51 +22,70 @@ from vswrist_gym.agents.protocol import TUNING_EVAL_SEEDS, TUNING_TRAIN_SEEDS, e
 from vswrist_gym.agents.train import train
 from vswrist_gym.tools.benchmark import track_entry
 
-ENV_ID = "VSWrist/Throw-v0"
 BUDGET = 80_000
 SEEDS = TUNING_TRAIN_SEEDS[:2]
 HERE = Path(__file__).resolve().parent
-RUNS = Path("runs/throw_tuning")
-NET128 = "dict(log_std_init=-1.5, net_arch=dict(pi=[128, 128], vf=[128, 128]), activation_fn=nn.Tanh)"
-CANDIDATES = {
-    "base": {}, "lr3e-4": {"learning_rate": 3.0e-4}, "lr1.2e-3": {"learning_rate": 1.2e-3},
-    "std-0.5": {"policy_kwargs": "dict(log_std_init=-0.5, net_arch=dict(pi=[64, 64], vf=[64, 64]), "
-                                 "activation_fn=nn.Tanh)"},
-    "epochs20": {"n_epochs": 20}, "steps64": {"n_steps": 64, "batch_size": 512}, "ent0.005": {"ent_coef": 0.005},
-    "net128": {"policy_kwargs": NET128},
-}
+POLICY = "dict(log_std_init={std}, net_arch=dict(pi=[{w}, {w}], vf=[{w}, {w}]), activation_fn=nn.Tanh)"
 
 
-def config(name: str) -> dict:
-    doc = track_entry(ENV_ID, "ppo", "stiffness", 0.0, budget=BUDGET)
-    doc = copy.deepcopy(doc)
-    doc[ENV_ID].update(CANDIDATES[name])
+def policy(base: str, std: float | None = None, width: int | None = None) -> str:
+    """The entry's ``policy_kwargs`` string with its initial log std and hidden width changed where given."""
+    std0 = float(re.search(r"log_std_init=([-0-9.]+)", base).group(1))
+    w0 = int(re.search(r"pi=\[(\d+)", base).group(1))
+    return POLICY.format(std=std0 if std is None else std, w=w0 if width is None else width)
+
+
+def candidates(env_id: str) -> dict:
+    """One change each from the packaged entry of ``env_id``; Throw-v0's set as its NOTES.md registered it (its
+    entry then had log_std_init -1.5), Hammer-v1's as ../hammer_tuning/NOTES.md did."""
+    common = {"base": {}, "lr3e-4": {"learning_rate": 3.0e-4}, "lr1.2e-3": {"learning_rate": 1.2e-3}}
+    if env_id == "VSWrist/Throw-v0":
+        base = "dict(log_std_init=-1.5, net_arch=dict(pi=[64, 64], vf=[64, 64]), activation_fn=nn.Tanh)"
+        return {**common, "std-0.5": {"policy_kwargs": policy(base, std=-0.5)},
+                "epochs20": {"n_epochs": 20}, "steps64": {"n_steps": 64, "batch_size": 512},
+                "ent0.005": {"ent_coef": 0.005}, "net128": {"policy_kwargs": policy(base, width=128)}}
+    base = track_entry(env_id, "ppo", "stiffness", 0.0, budget=BUDGET)[env_id]["policy_kwargs"]
+    return {**common, "std0.0": {"policy_kwargs": policy(base, std=0.0)},
+            "std-1.0": {"policy_kwargs": policy(base, std=-1.0)}, "epochs20": {"n_epochs": 20},
+            "steps64": {"n_steps": 64, "batch_size": 512}, "gae0.9": {"gae_lambda": 0.9},
+            "clip0.3": {"clip_range": 0.3}, "net128": {"policy_kwargs": policy(base, width=128)}}
+
+
+def config(env_id: str, change: dict) -> dict:
+    doc = copy.deepcopy(track_entry(env_id, "ppo", "stiffness", 0.0, budget=BUDGET))
+    doc[env_id].update(change)
     return doc
 
 
-def score(name: str, seed: int) -> float:
-    run = RUNS / name / f"seed{seed}"
+def score(env_id: str, runs: Path, name: str, change: dict, seed: int) -> float:
+    run = runs / name / f"seed{seed}"
     if not (run / "model.zip").is_file():
-        cfg = RUNS / name / "ppo.yaml"
+        cfg = runs / name / "ppo.yaml"
         cfg.parent.mkdir(parents=True, exist_ok=True)
-        cfg.write_text(yaml.safe_dump(config(name), sort_keys=False))
+        cfg.write_text(yaml.safe_dump(config(env_id, change), sort_keys=False))
         resume = (run / "config.yaml").is_file()
-        train(ENV_ID, "ppo", run, config=None if resume else cfg, timesteps=BUDGET, seed=seed, resume=resume,
+        train(env_id, "ppo", run, config=None if resume else cfg, timesteps=BUDGET, seed=seed, resume=resume,
               progress=False)
     spec = AgentSpec(str(run), checkpoint="final")
-    records, _ = evaluate(ENV_ID, spec.make, TUNING_EVAL_SEEDS, 10, env_kwargs=spec.env_kwargs)
+    records, _ = evaluate(env_id, spec.make, TUNING_EVAL_SEEDS, 10, env_kwargs=spec.env_kwargs)
     return float(np.mean([r["return"] for r in records]))
 
 
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--task", default="VSWrist/Throw-v0")
+    ap.add_argument("--study", type=Path, default=HERE, help="the study's folder (results.json goes there)")
+    args = ap.parse_args()
     limit_threads(1)
-    out = HERE / "results.json"
+    CANDIDATES = candidates(args.task)
+    runs = Path("runs") / args.study.resolve().name
+    out = args.study / "results.json"
     doc = json.loads(out.read_text()) if out.is_file() else {}
     for name in CANDIDATES:
         for seed in SEEDS:
             key = f"{name}/{seed}"
             if key not in doc:
-                doc[key] = score(name, seed)
+                doc[key] = score(args.task, runs, name, CANDIDATES[name], seed)
                 out.write_text(json.dumps(doc, indent=1))
                 print(f"{key}: {doc[key]:.2f}", flush=True)
     means = {n: float(np.mean([doc[f"{n}/{s}"] for s in SEEDS])) for n in CANDIDATES}
