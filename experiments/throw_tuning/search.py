@@ -1,8 +1,10 @@
 """A one-change-at-a-time hyperparameter search for a task's stiffness-track PPO on tuning seeds only.
-Protocols: NOTES.md here (Throw-v0) and ../hammer_tuning/NOTES.md (Hammer-v1), each written before its first run.
+Protocols: NOTES.md here (Throw-v0), ../hammer_tuning/NOTES.md (Hammer-v1) and ../throw_tuning2/NOTES.md (Throw-v0's
+second round), each written before its first run.
 
     python experiments/throw_tuning/search.py
     python experiments/throw_tuning/search.py --task VSWrist/Hammer-v1 --study experiments/hammer_tuning
+    python experiments/throw_tuning/search.py --study experiments/throw_tuning2 --seeds 1002 1003
 """
 
 import argparse
@@ -35,11 +37,11 @@ def policy(base: str, std: float | None = None, width: int | None = None) -> str
     return POLICY.format(std=std0 if std is None else std, w=w0 if width is None else width)
 
 
-def candidates(env_id: str) -> dict:
-    """One change each from the packaged entry of ``env_id``; Throw-v0's set as its NOTES.md registered it (its
-    entry then had log_std_init -1.5), Hammer-v1's as ../hammer_tuning/NOTES.md did."""
+def candidates(env_id: str, first_throw_round: bool = False) -> dict:
+    """One change each from the packaged entry of ``env_id``: Throw-v0's first round as its NOTES.md registered it
+    (its entry then had log_std_init -1.5); else the set ../hammer_tuning/NOTES.md registered."""
     common = {"base": {}, "lr3e-4": {"learning_rate": 3.0e-4}, "lr1.2e-3": {"learning_rate": 1.2e-3}}
-    if env_id == "VSWrist/Throw-v0":
+    if first_throw_round:
         base = "dict(log_std_init=-1.5, net_arch=dict(pi=[64, 64], vf=[64, 64]), activation_fn=nn.Tanh)"
         return {**common, "std-0.5": {"policy_kwargs": policy(base, std=-0.5)},
                 "epochs20": {"n_epochs": 20}, "steps64": {"n_steps": 64, "batch_size": 512},
@@ -75,25 +77,30 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--task", default="VSWrist/Throw-v0")
     ap.add_argument("--study", type=Path, default=HERE, help="the study's folder (results.json goes there)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS), help="training seeds (tuning seeds only)")
     args = ap.parse_args()
+    bad = sorted(set(args.seeds) - set(TUNING_TRAIN_SEEDS))
+    if bad:
+        ap.error(f"--seeds must be tuning training seeds {TUNING_TRAIN_SEEDS[0]}-{TUNING_TRAIN_SEEDS[-1]}, got {bad}")
+    seeds = args.seeds
     limit_threads(1)
-    CANDIDATES = candidates(args.task)
+    CANDIDATES = candidates(args.task, args.task == "VSWrist/Throw-v0" and args.study.resolve() == HERE)
     runs = Path("runs") / args.study.resolve().name
     out = args.study / "results.json"
     doc = json.loads(out.read_text()) if out.is_file() else {}
     for name in CANDIDATES:
-        for seed in SEEDS:
+        for seed in seeds:
             key = f"{name}/{seed}"
             if key not in doc:
                 doc[key] = score(args.task, runs, name, CANDIDATES[name], seed)
                 out.write_text(json.dumps(doc, indent=1))
                 print(f"{key}: {doc[key]:.2f}", flush=True)
-    means = {n: float(np.mean([doc[f"{n}/{s}"] for s in SEEDS])) for n in CANDIDATES}
+    means = {n: float(np.mean([doc[f"{n}/{s}"] for s in seeds])) for n in CANDIDATES}
     best = max(means, key=lambda n: (means[n], n == "base"))
-    print("| candidate | change | tuning return, seeds " + ", ".join(map(str, SEEDS)) + " | mean |\n|---|---|---|---|")
+    print("| candidate | change | tuning return, seeds " + ", ".join(map(str, seeds)) + " | mean |\n|---|---|---|---|")
     for n, m in means.items():
         print(f"| {'**' + n + '**' if n == best else n} | {CANDIDATES[n] or 'the packaged entry'} | "
-              + ", ".join(f"{doc[f'{n}/{s}']:.2f}" for s in SEEDS) + f" | {m:.2f} |")
+              + ", ".join(f"{doc[f'{n}/{s}']:.2f}" for s in seeds) + f" | {m:.2f} |")
     print(f"\nwinner: {best}")
     return 0
 
