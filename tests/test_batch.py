@@ -243,8 +243,8 @@ def test_pickled_batch_continues_identically():
 
 def test_worlds_read_and_write_the_batch_episode_state():
     """The batch's episode state (``episode.EpisodeState``, (N,) arrays) and its worlds' own attributes are one
-    memory: the batch's array step advances every world's clock and contact record, a world's reset writes its
-    row, and a pickled batch shares it again."""
+    memory: the batch's array step advances every world's clock, contact record and controller's command, a world's
+    reset writes its row, and a pickled batch shares it again."""
     venv = make_batch("VSWrist/Impact-v0", n=3, threads=1)
     venv.reset(seed=0)
     a = np.full(venv.action_space.shape, 0.2)
@@ -258,6 +258,9 @@ def test_worlds_read_and_write_the_batch_episode_state():
             assert (e._step, e._t, e._peak_contact, e._sum_contact_sq) == (
                 ep.step[i], ep.t[i], ep.peak_contact[i], ep.sum_contact_sq[i])
             assert type(e._step) is int and type(e._t) is float
+            assert e.ctrl.lam == ep.lam[i] and np.shares_memory(e.ctrl._lam, ep.lam)
+            np.testing.assert_array_equal(e.ctrl.posture_reference, ep.command[i])
+            assert np.shares_memory(e.ctrl._ref, ep.command)
         twin.reset(options={"reset_mask": np.array([False, True, False])})
         assert ep.step[1] == 0 and ep.step[0] == 4 and ep.t[1] == 0.0
         twin.step(a)

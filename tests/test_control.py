@@ -405,3 +405,23 @@ def test_batched_step_is_the_scalar_step_world_by_world(params, gravity):
         np.testing.assert_allclose(q1[i], q1_s, rtol=0, atol=1e-12)
         np.testing.assert_allclose([[Ja[0][k, i], Ja[1][k, i]] for k in range(3)], Ja_s, rtol=0, atol=1e-12)
         np.testing.assert_allclose([x[i] for x in ctrl.basis_batch(Ja)], N_s, rtol=0, atol=1e-12)
+
+
+def test_a_bound_controller_keeps_its_command_in_the_given_arrays(params):
+    """``bind``: the command (clipped posture reference, lam) moves into the caller's arrays with its values, the
+    controller writes it there, and goes on from what the caller writes there (as a batch's ``step_batch`` rows)."""
+    ctrl = AnalyticController(params)
+    twin = AnalyticController(params)
+    for c in (ctrl, twin):
+        c.step((0.1, -0.2, 0.3), lam=0.5)
+    ref, lam = np.full((2, 3), np.nan), np.full(2, np.nan)
+    ctrl.bind(ref[1], lam[1:])
+    np.testing.assert_array_equal(ref[1], twin.posture_reference)
+    assert lam[1] == twin.lam == ctrl.lam
+    ctrl.step((9.0, 0.05, 0.0), lam=1e6)  # clipped, into the arrays
+    np.testing.assert_array_equal(ref[1], ctrl.posture_reference)
+    assert ref[1, 0] == params.range_of_motion.rud_max and lam[1] == ctrl.lam == ctrl.lambda_range()[1]
+    _, lam_c, u = twin.step_batch(np.array([[0.2, 0.1, 0.0]]), np.array([0.3]))
+    ref[1], lam[1] = u[0], lam_c[0]
+    np.testing.assert_array_equal(ctrl.step((0.2, 0.1, 0.0)), twin.step((0.2, 0.1, 0.0), lam=0.3))
+    assert np.isnan(ref[0]).all() and np.isnan(lam[0])

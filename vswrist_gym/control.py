@@ -138,14 +138,41 @@ class AnalyticController:
         self._gravity = tuple(p.environment.gravity)
         self._terms_key: tuple[float, float] | None = None
         self._terms = None
+        # the command: the last clipped posture reference (RUD, FE, PS; rad) and internal torque (N m), in arrays
+        # that an environment may hold for it (``bind``)
+        self._ref = np.zeros(3)
+        self._lam = np.zeros(1)
         self.reset()
 
     # ------------------------------------------------------------------ state
+    def bind(self, reference: np.ndarray, lam: np.ndarray) -> None:
+        """Keep the command in these arrays from now on, carrying the current one into them: ``reference`` (3,)
+        the clipped posture reference (RUD, FE, PS; rad), ``lam`` (1,) the internal torque (N m). An environment
+        passes its row of the episode state, so that a batch writes every world's command in one array operation
+        (``step_batch``) and each world's controller goes on from it."""
+        reference[:] = self._ref
+        lam[:] = self._lam
+        self._ref, self._lam = reference, lam
+
+    @property
+    def lam(self) -> float:
+        """The internal torque commanded last (N m)."""
+        return self._lam.item(0)
+
+    @lam.setter
+    def lam(self, value: float) -> None:
+        self._lam[0] = value
+
+    @property
+    def _u(self) -> tuple[float, float]:
+        """The last clipped posture reference (RUD, FE), rad."""
+        ref = self._ref
+        return ref.item(0), ref.item(1)
+
     def reset(self, posture=(0.0, 0.0, 0.0), lam: float = 0.0) -> np.ndarray:
         """Start at ``posture`` (RUD, FE, PS) rad with internal torque ``lam`` (N m, clipped); returns theta (4,)."""
-        self._u = (0.0, 0.0)
-        self._ps = 0.0
-        self.lam = 0.0
+        self._ref[:] = 0.0
+        self._lam[0] = 0.0
         return self.step(posture, lam=lam)
 
     def step(self, posture_ref, lam: float | None = None, compliance_ref=None) -> np.ndarray:
@@ -160,7 +187,8 @@ class AnalyticController:
         ay = rlo if ay < rlo else rhi if ay > rhi else ay
         az = flo if az < flo else fhi if az > fhi else az
         ps = plo if ps < plo else phi if ps > phi else ps
-        self._u, self._ps = (ay, az), ps
+        ref = self._ref
+        ref[0], ref[1], ref[2] = ay, az, ps
         q1, Ja, dOc, dxc = self._posture_kinematics(ay, az)
         N = self._basis(Ja)
         hi = self._tau_max / max(abs(N[0]), abs(N[1]), abs(N[2]))
@@ -173,13 +201,13 @@ class AnalyticController:
                 lam_f = math.nan
             if isinstance(lam, bool) or not math.isfinite(lam_f):
                 raise ValueError(f"lam (internal torque, N m) must be a finite number, got {lam!r}")
-            self.lam = min(max(lam_f, -hi), hi)
+            lam_ = min(max(lam_f, -hi), hi)
         elif compliance_ref is not None:
             c_ref = np.asarray(_finite_vector("compliance_ref", compliance_ref, 4)).reshape(2, 2)
-            self.lam = self._lm_update(c_ref, (-hi, hi))
+            lam_ = self._lm_update(c_ref, (-hi, hi))
         else:
-            self.lam = min(max(self.lam, -hi), hi)
-        lam_ = self.lam
+            lam_ = min(max(self._lam.item(0), -hi), hi)
+        self._lam[0] = lam_
         t0, t1, t2 = lam_ * N[0], lam_ * N[1], lam_ * N[2]
         if self.gravity_compensation:
             g0, g1, g2 = self._min_norm_torques(Ja, self._gravity_from_derivatives(dOc, dxc))
@@ -202,8 +230,8 @@ class AnalyticController:
     def step_batch(self, posture_ref: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Motor references of N controllers sharing these parameters, at once: ``posture_ref`` (N, 3) finite
         (RUD, FE, PS) references, ``lam`` (N,) internal torques (N m). Returns (theta (N, 4), the clipped lam
-        (N,), the clipped references (N, 3)); the controller's own state is not touched (the caller keeps one
-        controller per world and gives each its command, ``set_command``)."""
+        (N,), the clipped references (N, 3)): the N controllers' commands, which the caller writes where they keep
+        them (``bind``); this controller's own is not touched."""
         ref = np.asarray(posture_ref, dtype=float)
         (rlo, rhi), (flo, fhi), (plo, phi) = self._limits
         ay = np.minimum(np.maximum(ref[:, 0], rlo), rhi)
@@ -225,11 +253,6 @@ class AnalyticController:
         theta[:, :3] = q1 - spring_deflection(np.stack([t0, t1, t2], axis=1), self._law)
         theta[:, 3] = ps
         return theta, lam_c, np.stack([ay, az, ps], axis=1)
-
-    def set_command(self, ay: float, az: float, ps: float, lam: float) -> None:
-        """Record a command that ``step_batch`` computed for this controller's world, as ``step`` records its own:
-        the clipped posture reference (RUD ``ay``, FE ``az``, PS ``ps``; rad) and lam (N m)."""
-        self._u, self._ps, self.lam = (ay, az), ps, lam
 
     def posture_kinematics_batch(self, ay: np.ndarray, az: np.ndarray, with_q1: bool = True):
         """``_posture_kinematics`` over arrays, the three legs stacked along a first axis: (q1 (N, 3) or None,
@@ -258,7 +281,7 @@ class AnalyticController:
     @property
     def posture_reference(self) -> np.ndarray:
         """The last (clipped) posture reference (RUD, FE, PS), rad."""
-        return np.array([self._u[0], self._u[1], self._ps])
+        return self._ref.copy()
 
     # ------------------------------------------------------- fast kinematics
     def _q1_ja(self, ay: float, az: float):

@@ -181,6 +181,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         self.ctrl = _import_controller()(params=self.nominal_params, dt=self.ctrl_dt,
                                          gravity_compensation=cfg["gravity_compensation"],
                                          payload=self._compensated_payload() if cfg["compensate_tool"] else ())
+        self._use_episode_state(self._ep)
 
         rom = self.nominal_params.range_of_motion
         self.posture_map = PostureMap([rom.rud_min, rom.fe_min, rom.ps_min], [rom.rud_max, rom.fe_max, rom.ps_max])
@@ -287,8 +288,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         a = clip_action(a)
         ep = self._ep
         ep.action[0] = a
-        ep.theta[0] = self._motor_refs(a)
-        ep.lam[0] = self.ctrl.lam
+        ep.theta[0] = self._motor_refs(a)  # the controller writes its command into the episode state
         self._before_physics(self._t)
 
     def _advance(self) -> None:

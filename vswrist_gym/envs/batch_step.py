@@ -3,9 +3,10 @@
 
 Before the physics: action clipping and maps, the ``motor`` mode's map and the analytic controller (modes
 ``posture_stiffness`` and ``residual``: ``AnalyticController.step_batch``) over arrays of worlds, the compliance
-mode's LM dynamics world by world, into the episode state's actions and motor references (``episode``); then the
-task's loads, ``_before_physics_worlds`` (over arrays of worlds where the task writes them so: Drill, LoadHold; else
-each world's ``_before_physics``).
+mode's LM dynamics world by world, into the episode state's actions, motor references and the controllers'
+commands (``episode``: each world's controller keeps its command in its row); then the task's loads,
+``_before_physics_worlds`` (over arrays of worlds where the task writes them so: Drill, LoadHold; else each world's
+``_before_physics``).
 
 After the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool wrench: what
 ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics threads, or in
@@ -81,7 +82,8 @@ class ArrayStepMixin:
     def _begin(self, worlds: list, ids: np.ndarray, acts: np.ndarray) -> np.ndarray:
         """Action -> controller -> motor references of the live worlds (``VSWristEnv._begin_step``; ``ids``: their
         indices in the batch), over arrays except the compliance mode's LM dynamics, world by world: the clipped
-        actions and the motor references (L, 4) go into the episode state; returns the references."""
+        actions, the motor references (L, 4) and the controllers' commands go into the episode state; returns the
+        references."""
         A = clip_action(acts)
         first = worlds[0]
         mode = self._mode
@@ -90,16 +92,14 @@ class ArrayStepMixin:
             target = ep.target[ids] if mode == "residual" else None
             ref, lam = first._posture_command(A, target)
             # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
-            theta, lam, u = first.ctrl.step_batch(ref, lam)
-            for e, (ay, az, ps), lam_k in zip(worlds, u.tolist(), lam.tolist()):
-                e.ctrl.set_command(ay, az, ps, lam_k)
+            theta, lam, command = first.ctrl.step_batch(ref, lam)
+            ep.put(ids, command=command, lam=lam)  # the worlds' controllers' state: each reads its row
         elif mode == "motor":  # no controller: every world's map is the same (the nominal range of motion), and
-            # its internal torque stays the reset's
-            theta, lam = first._motor_refs(A), ep.lam[ids]
-        else:  # posture_compliance: the LM dynamics of each world's controller
+            # its command stays the reset's
+            theta = first._motor_refs(A)
+        else:  # posture_compliance: the LM dynamics of each world's controller, which writes its row's command
             theta = np.array([e._motor_refs(a) for e, a in zip(worlds, A)])
-            lam = np.array([e.ctrl.lam for e in worlds])
-        ep.put(ids, action=A, theta=theta, lam=lam)
+        ep.put(ids, action=A, theta=theta)
         if self._hook_before:
             type(first)._before_physics_worlds(worlds, ep.t[ids])
         return theta

@@ -6,9 +6,11 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
 * the world's springs (``spring_K``, N m; ``spring_delta0``, rad: the sinh law's constants, ``stiffness.SpringLaw``;
   each world's own where randomisation draws them at reset);
 * the step under way: its action (``action`` (N, action dim): clipped to [-1, 1]), the motor references it
-  commands (``theta`` (N, 4): A, B, C, PS, rad) and the internal torque the controller commands with them (``lam``,
-  N m: the stiffness preload, as the observation and the info report it; the controller's own, recorded where the
-  controller computes it, at each step and at reset);
+  commands (``theta`` (N, 4): A, B, C, PS, rad) and the controller's command behind them: the clipped posture
+  reference (``command`` (N, 3): RUD, FE, PS, rad) and the internal torque (``lam``, N m: the stiffness preload, as
+  the observation and the info report it). The command is the controller's state: each world's
+  ``AnalyticController`` keeps it in its row (``AnalyticController.bind``), so a batch that computes its worlds'
+  commands over arrays writes them here in one operation and each controller goes on from them;
 * whether the physics of the last control period diverged (``diverged``: MuJoCo found the state unstable and
   reset it; the simulator's message stays with the world, ``_sim_error``; ``ending``);
 * the episode's actuation latency (``latency``: the substeps at the start of each control period that still run
@@ -44,7 +46,7 @@ class EpisodeState:
     """The (N, ...) arrays of N worlds' episode state (see the module docstring); a new one is all zeros, its
     episodes ended (none has begun)."""
 
-    FIELDS = ("spring_K", "spring_delta0", "action", "theta", "lam", "diverged", "latency", "step", "t", "ended",
+    FIELDS = ("spring_K", "spring_delta0", "action", "theta", "command", "lam", "diverged", "latency", "step", "t", "ended",
               "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure", "references",
               "target", "prev_action", "noise", "nz", "history_error", "history_energy", "history_contact")
     __slots__ = FIELDS
@@ -55,6 +57,7 @@ class EpisodeState:
         self.spring_delta0 = np.zeros(n)
         self.action = np.zeros((n, n_act))
         self.theta = np.zeros((n, 4))
+        self.command = np.zeros((n, 3))
         self.lam = np.zeros(n)
         self.diverged = np.zeros(n, dtype=bool)
         self.latency = np.zeros(n, dtype=np.int64)
@@ -114,7 +117,7 @@ def share(worlds: list) -> EpisodeState:
     for f in EpisodeState.FIELDS:
         setattr(out, f, np.concatenate([getattr(e._ep, f) for e in worlds]))
     for i, e in enumerate(worlds):
-        e._ep = out.row(i)
+        e._use_episode_state(out.row(i))
     return out
 
 
@@ -150,6 +153,11 @@ class EpisodeStateMixin:
     """``VSWristEnv``'s attributes over its row of the episode state (``self._ep``), read-only: the numbers of one
     world as Python numbers, as the tasks' hooks read them, and its vectors as views of its row. The state is
     written through ``_ep`` (``_nz`` excepted: a test replaces the noise draws through it)."""
+
+    def _use_episode_state(self, ep: EpisodeState) -> None:
+        """Hold ``ep`` (one world's rows) as this world's episode state, with its controller's command in it."""
+        self._ep = ep
+        self.ctrl.bind(ep.command[0], ep.lam)
 
     @property
     def _a(self) -> np.ndarray:

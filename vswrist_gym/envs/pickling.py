@@ -25,6 +25,7 @@ class PicklingMixin:
         sim_state = state.pop("_sim_state")
         mass, inertia, friction, frictionloss = state.pop("_model_mutable")
         self.__dict__.update(state)
+        self._use_episode_state(self._ep)  # the controller's command and the episode state came back apart
         self._import_simulator()
         self._renderer = None
         self._viewer = None

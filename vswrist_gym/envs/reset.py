@@ -66,7 +66,6 @@ class ResetMixin:
         ep = self._ep
         ep.references[0] = self._reference(np.arange(self.episode_steps + 1) * self.ctrl_dt)
         ep.target[0] = ep.references[0, 0]
-        ep.lam[0] = self.ctrl.lam
         self._measure()
         ep.closure[0] = self.sim.loop_closure_peak() if self.cfg["settle_s"] > 0.0 else \
             self.sim.loop_closure_error()
