@@ -466,6 +466,32 @@ def test_a_task_overriding_a_step_method_is_refused(monkeypatch):
         make_batch("VSWrist/LoadHold-v0", n=8)
 
 
+def test_a_task_overriding_the_reward_is_run_by_the_batch_as_alone(monkeypatch):
+    """The reward (``_step_reward``) is one method the single env and the batch both run: a task's override of it
+    is not refused, and world 0 of a batch earns what the single env earns."""
+    from vswrist_gym.envs.base import VSWristEnv
+    from vswrist_gym.envs.load_hold import LoadHoldEnv
+
+    def _step_reward(self, *args):
+        weighted, reward = VSWristEnv._step_reward(self, *args)
+        return weighted, reward + 0.25 * weighted["reward_energy"]
+
+    monkeypatch.setattr(LoadHoldEnv, "_step_reward", _step_reward, raising=False)
+    venv = make_batch("VSWrist/LoadHold-v0", n=2)
+    env = gym.make("VSWrist/LoadHold-v0")
+    venv.reset(seed=3)
+    env.reset(seed=3)
+    a = np.full(venv.action_space.shape, 0.3)
+    for _ in range(3):
+        _, rb, *_ = venv.step(a)
+        _, r, _, _, info = env.step(a[0])
+        assert rb[0] == r
+        plain = sum(v for k, v in info.items() if k.startswith("reward_"))
+        assert info["reward_energy"] != 0.0 and r == pytest.approx(plain + 0.25 * info["reward_energy"])
+    venv.close()
+    env.close()
+
+
 @pytest.mark.parametrize("env_id", ["VSWrist/LoadHold-v0", "VSWrist/Polish-v1"])
 @pytest.mark.parametrize("mode", [gym.vector.AutoresetMode.NEXT_STEP, gym.vector.AutoresetMode.SAME_STEP])
 def test_threads_and_chunks_give_the_one_thread_numbers(env_id, mode):

@@ -340,7 +340,9 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         target = ep.target[0] = ep.references[0, k]
         err = wrap_angle(ep.posture[0] - target)
         self._record_step(err)
-        weighted, reward = self._reward(err, a, failure)
+        weighted, reward = self._step_reward(err, ep.energy.item(0), a, ep.prev_action[0], failure is not None,
+                                             self._task_reward_terms(err))
+        weighted = {name: float(v) for name, v in weighted.items()}
         ep.prev_action[0] = a  # rounded to float32, as the observation has it
         terminated = failure is not None
         time_up, cut, truncated = episode_end(terminated, k, self.episode_steps, closure[0],

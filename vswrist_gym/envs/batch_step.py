@@ -29,13 +29,13 @@ from .actions import clip_action
 from .ending import episode_end, restart_failed, step_failures
 from .episode import record_contact, record_history, tick
 from .observations import observe
-from .rewards import common_reward_terms, step_metrics, weigh, wrap_angle
+from .rewards import step_metrics, wrap_angle
 
 # the single env's step methods that the array step computes over arrays (a batch of a task overriding one is
 # refused: the batch would not run the override); the hooks it calls per world, or over arrays
-# (``_tracking_error``), stay the task's
-STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_reward", "_info", "_observation",
-                "_draw_noise", "_obs_terms")
+# (``_tracking_error``), stay the task's, and what the single env and the batch both run (the reward,
+# ``_step_reward``; the observation terms, ``_obs_terms``) takes a task's override in both
+STEP_METHODS = ("_begin_step", "_finish_step", "_motor_refs", "_measure", "_info", "_observation", "_draw_noise")
 
 
 class BatchMeasures:
@@ -169,19 +169,15 @@ class ArrayStepMixin:
                                               first._closure_truncate)
 
         # world by world: the task's reward terms
-        hook_reward = self._hook_reward
-        task_raw = []
-        if hook_reward:
+        task_terms = {}
+        if self._hook_reward:
             task_raw = [e._task_reward_terms(er) for e, er in zip(worlds, err)]
+            task_terms = {name: np.array([d[name] for d in task_raw]) for name in first.task_reward_terms}
         # after the reward hooks, as the single env's _finish_step
         ep.put(ids, prev_action=PA, ended=terminated | truncated)
 
-        # reward (the single env's terms, over arrays)
-        rterms = common_reward_terms(first._tracking_error(err), energy, A, prev, terminated, first.cfg["scales"])
-        if hook_reward:
-            for name in first.task_reward_terms:
-                rterms[name] = np.array([d[name] for d in task_raw])
-        cols, reward = weigh(rterms, first.reward_weights)
+        # reward (the single env's, over arrays)
+        cols, reward = first._step_reward(err, energy, A, prev, terminated, task_terms)
 
         # observation (the single env's terms, over arrays)
         measures = BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, t, NZ)

@@ -81,14 +81,14 @@ class RewardsMixin:
     """The reward (unweighted terms, weights from config, their sum) and the ``info`` metrics of one world's
     step, through the functions above."""
 
-    def _reward(self, err: np.ndarray, a: np.ndarray, failure: str | None) -> tuple[dict, float]:
-        """The weighted terms ``reward_<name>`` and their sum."""
-        ep = self._ep
-        raw = common_reward_terms(self._tracking_error(err), ep.energy.item(0), a, ep.prev_action[0],
-                                  failure is not None, self.cfg["scales"])
-        raw.update(self._task_reward_terms(err))
-        weighted, reward = weigh(raw, self.reward_weights)
-        return {k: float(v) for k, v in weighted.items()}, float(reward)
+    def _step_reward(self, err, energy, action, prev_action, terminated, task_terms: dict) -> tuple[dict, object]:
+        """The weighted terms ``reward_<name>`` and their sum, of one world's step (its rows, ``self`` the world) or
+        of a batch's worlds ((N, ...) arrays, ``self`` any of them): the common terms over the part of the posture
+        error ``err`` the task counts, and the task's own (``task_terms``: {name: value}, its hook's values)."""
+        raw = common_reward_terms(self._tracking_error(err), energy, action, prev_action, terminated,
+                                  self.cfg["scales"])
+        raw.update(task_terms)
+        return weigh(raw, self.reward_weights)
 
     def _info(self, weighted: dict, final: bool, err: np.ndarray | None = None) -> dict:
         ep = self._ep
