@@ -39,11 +39,11 @@ logger = logging.getLogger(__name__)
 
 # LoadHold (both tracks) and Impact's stiffness track are not shipped: their policies lost to the best constant
 # stiffness on the held-out episodes (`vswrist gate --shipped`), which tests/test_shipped_heldout.py refuses.
-# Throw's two tracks ship the median training seed of their leaderboard cells (`vswrist benchmark`), shipped with
-# `--stage ship` from those runs; a plain rerun of this tool trains seed 0 instead.
+# Throw's and Hammer's (Hammer-v1's) tracks ship the median training seed of their leaderboard cells (`vswrist
+# benchmark`), shipped with `--stage ship` from those runs; a plain rerun of this tool trains seed 0 instead.
 SHIP = (("Polish", "full"), ("Impact", "full"), ("Insertion", "full"), ("Drill", "full"), ("Hammer", "stiffness"),
         ("Polish", "stiffness"), ("Insertion", "stiffness"), ("Drill", "stiffness"), ("Throw", "stiffness"),
-        ("Throw", "full"))
+        ("Throw", "full"), ("Hammer", "full"))
 STIFFNESS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 EVAL_SEEDS = (0, 1, 2, 3, 4)
 EVAL_EPISODES = 4
