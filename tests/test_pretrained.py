@@ -234,7 +234,7 @@ def test_video_and_view_drive_the_shipped_policy(tmp_path):
     card = card_of(SHIPPED[key])
     first = card["evaluation"]["episodes"][0]
     reset = 1_000_000 + 1000 * first["seed"] + first["episode"]
-    agent_text = f"pretrained:{key[0]}"
+    agent_text = f"pretrained:{key[0]}:{key[1]}"
     out = tmp_path / "ep.mp4"
     p = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "video", "--task", card["env_id"], "--agent",
                         agent_text, "--seed", str(reset), "--width", "64", "--height", "48", "--out", str(out)],
