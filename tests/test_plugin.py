@@ -328,3 +328,26 @@ def test_compiled_path_leaves_no_global_callback():
     damping = sim.model.dof_damping[q1] * sim.data.qvel[q1]
     np.testing.assert_allclose(sim.data.qfrc_passive[q1], tau - damping, rtol=1e-12, atol=1e-15)
     assert np.abs(tau).min() > 0.1
+
+
+@pytest.mark.parametrize("variable, part", [("CC", "MuJoCo plugin"), ("CXX", "batched advance")])
+def test_without_a_compiler_the_error_says_what_to_install(tmp_path, variable, part):
+    """One physics path: where the plugin (C) or the batched advance (C++) cannot be compiled, making an env (or
+    a batch) raises NativeBuildError naming the part, a compiler to install and the VSWRIST_NATIVE=0 reference,
+    and the CLI says the same in one line; nothing falls back silently."""
+    env = {variable: str(tmp_path / "no-such-compiler"), "VSWRIST_CACHE": str(tmp_path / "cache")}
+    code = ("import gymnasium as gym, vswrist_gym\n"
+            "from vswrist_gym.model.plugin_lib import NativeBuildError\n"
+            "try:\n"
+            "    gym.make_vec('VSWrist/Polish-v1', num_envs=2, vectorization_mode='vector_entry_point')\n"
+            "except NativeBuildError as exc:\n"
+            "    print('ERROR', exc)\n")
+    res = _run(code, env, tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert f"ERROR vswrist-gym compiles its {part}" in res.stdout
+    assert "apt install gcc g++" in res.stdout and "VSWRIST_NATIVE=0" in res.stdout
+    cli = subprocess.run([sys.executable, "-m", "vswrist_gym.cli", "evaluate", "--task", "Polish", "--agent",
+                          "analytic:0", "--episodes", "2", "--seeds", "0", "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, env=dict(os.environ, **env), cwd=tmp_path, timeout=120)
+    assert cli.returncode != 0 and "Traceback" not in cli.stderr
+    assert part in cli.stderr and "VSWRIST_NATIVE=0" in cli.stderr

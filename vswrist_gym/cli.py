@@ -15,6 +15,7 @@ import importlib
 import sys
 
 from vswrist_gym.agents.output import _split_quiet, configure_output, run_tool  # noqa: F401  (tools call cli.run_tool)
+from vswrist_gym.model.plugin_lib import NativeBuildError
 
 COMMANDS = {
     "info": ("vswrist_gym.tools.info:main", "device parameters, stiffness range at home, kinematics self-check"),
@@ -129,6 +130,9 @@ def _dispatch(name: str, rest: list[str]) -> int:
         return 2
     try:
         return int(target(rest) or 0)
+    except NativeBuildError as exc:  # no compiler for the physics: what to install, not a traceback
+        print(f"vswrist {name}: {exc}", file=sys.stderr)
+        return 2
     except ModuleNotFoundError as exc:  # e.g. evaluating a learned policy on a core install
         message = missing_extra_message(name, exc.name or "")
         if message is None:

@@ -17,7 +17,7 @@ Quick reference (angles rad, torques N m, forces N, base frame = MuJoCo world fr
     s = sim.get_state(); sim.set_state(s)        # exact restart
 
 The springs and the motors' setpoint dynamics act inside every physics substep (``model.native``: MuJoCo
-plugins named in the model, or the fallback callbacks without a C compiler), so ``step`` is one
+plugins named in the model, or the reference callbacks under ``VSWRIST_NATIVE=0``), so ``step`` is one
 ``mj_step(m, d, n)`` call. Quantities derived from positions (body poses, sensors, actuator
 forces) are recomputed lazily with one ``mj_forward`` the first time an accessor needs them after ``step``;
 sensors are evaluated only then (they are disabled inside the substeps to save time). ``sync_kinematics()``
@@ -84,7 +84,7 @@ def add_contact_meter(spec: mujoco.MjSpec, name: str, body, geom1: str, geom2: s
     VS-Wrist drive plugin), referenced by ``body`` (an MjsBody): after every substep's constraint solve it adds
     the normal forces of the contacts of geom ``geom1`` (with ``geom2``, or with anything), counts the substep
     and keeps the first contact's time, position and the body's velocity (``contact_meter_state``). Returns
-    False, adding nothing, where the spec runs the fallback callbacks (no plugins)."""
+    False, adding nothing, where the spec runs the reference callbacks (no plugins)."""
     if not any(p.plugin_name == DRIVE_PLUGIN for p in spec.plugins):
         return False
     spec.activate_plugin(CONTACT_PLUGIN)
@@ -109,8 +109,9 @@ class WristSim:
     """MuJoCo simulation of one VS-Wrist built from one parameter set.
 
     ``scene_fn(spec)`` may add task bodies and geoms (world or the ``tool`` body) before compilation.
-    ``backend``: "c" (the compiled plugin), "python" (the fallback callbacks) or None (the plugin where a C
-    compiler is available; ``VSWRIST_NATIVE=0`` forces the fallback).
+    ``backend``: "c" (the compiled plugin; ``native.NativeBuildError`` without a C compiler), "python" (the
+    reference callbacks, for tests and comparisons) or None (the plugin, or the reference under
+    ``VSWRIST_NATIVE=0``).
     """
 
     def __init__(self, params: WristParams | str | None = None, scene_fn: SceneFn | None = None,
@@ -167,7 +168,7 @@ class WristSim:
         self._tool_f = d.sensordata[self._force_adr:self._force_adr + 3]
         self._tool_t = d.sensordata[self._torque_adr:self._torque_adr + 3]
         # the closure monitor keeps the worst weld violation it sees in the ``closure`` plugin instance's state
-        # (the fallback: userdata[slot] of builder's ``vswrist_closure`` field): one check per substep inside
+        # (the reference: userdata[slot] of builder's ``vswrist_closure`` field): one check per substep inside
         # mj_step, with no Python in the loop
         if self._callbacks:
             slot = int(m.numeric(CLOSURE_TAG).data[0])
@@ -416,7 +417,7 @@ class WristSim:
         """``loop_closure_error`` at its worst over the last ``step``: at the state it started from and after
         each of its substeps (the last one included), m or rad. The peaks of reference jumps last a few
         substeps, so the state at the end of a control period alone misses them. The closure plugin (or the
-        fallback callback) evaluates it once per substep."""
+        reference callback) evaluates it once per substep."""
         if self._stale:
             self._forward()  # the monitor runs in mj_forward too, so the final state is now counted
             return float(self._closure_peak[0])

@@ -137,7 +137,7 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         self._obs_size = first.obs_size
         self._obs_names = [t.name for t in first.obs_terms]
         self._obs_slices = dict(first.obs_slices)
-        # "c" (compiled per-substep springs and motors) or "python" (the fallback callbacks: no threads)
+        # "c" (compiled per-substep springs and motors) or "python" (the reference callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         # The compiled advance (``BatchSim``): one GIL-free call per chunk of worlds, for tasks whose
         # physics is the base class's (or the contact meter's plugin path); else ``_advance`` world by world.
@@ -153,7 +153,7 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
 
     # ------------------------------------------------------------------ threads
     def set_threads(self, threads: int | None) -> None:
-        """Physics threads (None: the cores available). With the Python fallback callbacks: always 1."""
+        """Physics threads (None: the cores available). With the Python reference callbacks: always 1."""
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
                                     or threads < 1):
             raise ValueError(f"threads must be an integer >= 1 or None (the core count), got {threads!r}")

@@ -9,10 +9,9 @@ some worlds runs beside the physics of others. The compiled plugins (``model.nat
 loop-closure monitor, and Polish's and Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable
 state (theirs lives in each MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds
 advance in parallel; no task steps substep by substep from Python. Actuation latency (its first substeps on the
-previous references) runs inside the compiled call too. Without a C++ compiler each world runs ``_advance`` (the
-bindings' ``mj_step``, which releases the GIL) on a pool of ``threads`` threads; with the Python fallback callbacks
-(no C compiler) each substep re-enters Python, so threads would only contend for the GIL: the batch then steps
-serially.
+previous references) runs inside the compiled call too. Under the reference physics (``VSWRIST_NATIVE=0``: the
+Python callbacks) each world runs ``_advance`` instead, and each substep re-enters Python, so threads would only
+contend for the GIL: the batch then steps serially.
 """
 
 from __future__ import annotations

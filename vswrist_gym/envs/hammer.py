@@ -32,7 +32,7 @@ fixed stiffnesses reach it on some episodes.
 
 The strike's instant and the head's speed just before it are exact to the substep (1 ms), not to the control
 period: the ``vswrist.contact`` plugin on the head records the first substep that finds it on the anvil inside
-the period's one ``mj_step`` call (``shared.PeriodMeanForce``; the Python fallback steps substep by substep).
+the period's one ``mj_step`` call (``shared.PeriodMeanForce``; the Python reference steps substep by substep).
 """
 
 from __future__ import annotations

@@ -145,7 +145,7 @@ class PeriodMeanForce:
     The measurement runs inside the physics, after the constraint solve of every substep: in the compiled
     physics a ``vswrist.contact`` plugin instance (``sim.add_contact_meter``) accumulates into its plugin state, so
     a period is one ``mj_step(m, d, n)`` call like every other task's (and a batch advances these worlds on its
-    threads too); the state is per MjData and part of ``mjSTATE_INTEGRATION``. With the Python fallback
+    threads too); the state is per MjData and part of ``mjSTATE_INTEGRATION``. With the Python reference
     callbacks (no C compiler) there is no plugin and the period runs one substep at a time, reading the same
     quantities from Python (``tests/test_substep_meter.py`` checks that the two agree).
 
@@ -160,12 +160,12 @@ class PeriodMeanForce:
     def _add_contact_meter(self, spec: mujoco.MjSpec, body, geom1: str, geom2: str | None = None) -> None:
         """Count contacts of geom ``geom1`` with ``geom2`` (None: with anything); ``body`` (an MjsBody) is the body
         whose velocity ``_on_first_contact`` gets. Adds the plugin instance where the spec runs the compiled
-        physics (it names the VS-Wrist plugins); the fallback's spec gets nothing."""
+        physics (it names the VS-Wrist plugins); the reference's spec gets nothing."""
         self._meter_names = (body.name, geom1, geom2)
         add_contact_meter(spec, CONTACT_METER, body, geom1, geom2)
 
     def _find_contact_meter(self) -> None:
-        """After (re)compilation: the plugin state's view (None with the fallback), geom and body ids."""
+        """After (re)compilation: the plugin state's view (None with the reference), geom and body ids."""
         m = self.model
         body, geom1, geom2 = self._meter_names
         self._meter_body = int(m.body(body).id)
@@ -192,7 +192,7 @@ class PeriodMeanForce:
             self._period_ran = True
             self.sim.step(duration, restart_peak=first)
             return
-        # the fallback: after mj_step(m, d, 1) the contact list, the solved forces and the body velocities are
+        # the reference: after mj_step(m, d, 1) the contact list, the solved forces and the body velocities are
         # those of the state the substep started from (what the plugin's advance callback sees)
         if first:
             self._force_sum, self._force_n, self._touched = 0.0, 0, False

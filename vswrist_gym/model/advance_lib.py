@@ -24,7 +24,8 @@ thread-local log handler that jumps back to the world's ``setjmp``): that world'
 batch raises ``mujoco.FatalError`` naming it, as the bindings' ``mj_step`` would raise it; the process
 lives on. The library is C++ (its thread pool, ``csrc/vswrist_advance.cc``); the system C++ compiler builds it
 once per ``plugin_lib.library_key`` into the cache directory of the plugin library; where there is none,
-``load()`` returns None and the batch steps world by world through ``WristSim``.
+``load()`` raises ``plugin_lib.NativeBuildError``. Only the reference physics (``VSWRIST_NATIVE=0``, the Python
+callbacks, which hold the GIL inside ``mj_step``) steps world by world through ``WristSim``.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .plugin_lib import CSRC, build_library
+from .plugin_lib import CSRC, build_library, native_build_error
 
 # columns of the handle table (one row per world, uint64): what the call needs of each world's MjModel/MjData, and
 # the world's actuation latency this period (substeps run on the previous motor references before the new ones)
@@ -64,7 +65,7 @@ def advance_defines() -> dict[str, str]:
     return {f"VSWRIST_{k}": str(v) for k, v in names.items()}
 
 
-_lib = None  # the loaded library's function, False where it cannot be built
+_lib = None  # the loaded library (ctypes), once loaded
 
 
 def compile_library() -> Path:
@@ -74,16 +75,15 @@ def compile_library() -> Path:
 
 
 def load():
-    """The compiled library (ctypes), or None where it cannot be built (no C++ compiler, or
-    ``VSWRIST_NATIVE=0``): callers then step world by world."""
+    """The compiled library (ctypes), built at first use; None under ``VSWRIST_NATIVE=0`` (the reference physics:
+    callers then step world by world). ``NativeBuildError`` where it cannot be built (no C++ compiler)."""
     global _lib
     if _lib is None:
-        _lib = False
         if os.environ.get("VSWRIST_NATIVE", "1") != "0":
             try:
                 lib = ctypes.CDLL(str(compile_library()))
-            except (OSError, RuntimeError):
-                pass
+            except (OSError, RuntimeError) as exc:
+                raise native_build_error("batched advance (model/csrc/vswrist_advance.cc)", exc) from exc
             else:
                 p, i = ctypes.c_void_p, ctypes.c_int
                 lib.vswrist_advance.argtypes = [p, p, i, p, p, i, i, p, p, p, i, p, i]

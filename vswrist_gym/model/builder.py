@@ -18,7 +18,7 @@ Structure (every element named; base frame = world frame, X along the forearm):
   first-order low-pass (time constant, speed limit) into the activation (the servo setpoint), held within
   ``kd vmax / kp`` of the motor angle, then a PD position loop ``kp (act - q) - kd qdot`` clamped to the torque
   limit: the loop never commands more than the speed limit and does not wind up when the torque saturates.
-  The setpoint dynamics are ``dyntype=user``, computed by the ``vswrist.drive`` plugin (or the fallback callback).
+  The setpoint dynamics are ``dyntype=user``, computed by the ``vswrist.drive`` plugin (or the reference callback).
 * Tendons ``deflection_A/B/C`` = q1 - theta with the mechanical deflection limit as a tendon limit: a damped
   bumper (time constant ``simulation.stop_timeconst``, MuJoCo's default impedance 0.9-0.95).
 * Springs and setpoint dynamics, ``physics="plugin"`` (the default): MuJoCo engine plugins named in the
@@ -29,7 +29,7 @@ Structure (every element named; base frame = world frame, X along the forearm):
   referenced by ``coupler``: it keeps the largest violation of the coupler's welds it sees (one check per
   substep, at no measurable cost) in its plugin state, so ``WristSim.loop_closure_peak`` has the worst over a
   whole ``mj_step(m, d, n)``.
-* ``physics="callbacks"`` (the fallback without a C compiler): custom numeric ``vswrist_spring`` = (K, delta0,
+* ``physics="callbacks"`` (the reference physics, ``VSWRIST_NATIVE=0``): custom numeric ``vswrist_spring`` = (K, delta0,
   q1 dof adr x3, motor dof adr x3, q1 qpos adr x3, motor qpos adr x3) carries the spring parameters to the
   process-global Python callbacks, which ignore any model without it; ``vswrist_motor`` tags the model for the
   setpoint dynamics (each actuator's ``dynprm[0:3]`` = time constant, speed limit, lead); ``vswrist_closure`` =
@@ -84,7 +84,7 @@ def _check_physics(physics: str) -> None:
 
 def model_xml(params: WristParams | str | None = None, physics: str = "plugin", nested: bool = False) -> str:
     """The MJCF text of the wrist. ``physics``: "plugin" (springs and motors as MuJoCo plugins: the text is a
-    self-contained model for any program that loads the plugin library), "callbacks" (the fallback's fields;
+    self-contained model for any program that loads the plugin library), "callbacks" (the reference's fields;
     ``build_model`` fills in their runtime addresses) or "bare" (no springs, frozen setpoints).
     ``nested``: the rotors and legs are children of the static ``base`` rather than of the world, so that the
     whole wrist is one subtree to attach to another model; the physics is the same."""
@@ -182,7 +182,7 @@ def model_xml(params: WristParams | str | None = None, physics: str = "plugin", 
 
     def actuator(name: str, joint: str, limit: float, scale: float = 1.0) -> str:
         kp, kd = mot.kp * scale, mot.kd * scale
-        # the plugin reads the setpoint constants from its instance's config; the fallback from dynprm
+        # the plugin reads the setpoint constants from its instance's config; the reference from dynprm
         dynprm = "" if plugin else f'dynprm="{tc:.17g} {vmax:.17g} {lead:.17g}" '
         return (f'<general name="{name}" joint="{joint}" dyntype="user" {dynprm}'
                 f'gaintype="fixed" gainprm="{kp:.17g}" biastype="affine" '
@@ -289,7 +289,7 @@ def model_xml(params: WristParams | str | None = None, physics: str = "plugin", 
 
 
 def _resolve_physics(physics: str | None) -> str:
-    """None: the plugin where it can be compiled, else the fallback callbacks (``native.install``). Makes
+    """None: the plugin, or the reference callbacks under ``VSWRIST_NATIVE=0`` (``native.install``). Makes
     sure what the mode needs is loaded or installed."""
 
     if physics is None:
@@ -312,7 +312,7 @@ def build_spec(params: WristParams | str | None = None, scene_fn: SceneFn | None
 
 
 def _fill_runtime_fields(m: mujoco.MjModel, p: WristParams) -> None:
-    """Write the joint and body addresses the fallback callbacks need into the model's ``vswrist_spring`` and
+    """Write the joint and body addresses the reference callbacks need into the model's ``vswrist_spring`` and
     ``vswrist_closure`` fields."""
     adr = m.numeric_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, SPRING_TAG)]
     ids_link = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"leg{n}_q1") for n in LEG_NAMES]
@@ -335,7 +335,7 @@ def home_motor_angles(params: WristParams | str | None = None) -> np.ndarray:
 
 def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | None = None,
                 physics: str | None = None) -> mujoco.MjModel:
-    """Compile the wrist (plus whatever ``scene_fn`` adds) with its ``home`` keyframe (and, for the fallback
+    """Compile the wrist (plus whatever ``scene_fn`` adds) with its ``home`` keyframe (and, for the reference
     callbacks, their runtime fields). ``physics`` as ``build_spec``."""
     p = load_params(params)
     physics = _resolve_physics(physics)
@@ -351,7 +351,7 @@ def build_model(params: WristParams | str | None = None, scene_fn: SceneFn | Non
     key.ctrl = ctrl
     key.act = act
 
-    with native.compiling():  # the fallback callbacks must not run inside the compiler
+    with native.compiling():  # the reference callbacks must not run inside the compiler
         m = spec.compile()
     if physics == "callbacks":
         _fill_runtime_fields(m, p)

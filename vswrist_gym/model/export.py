@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     except ParamsError as exc:
         print(f"vswrist export: --params: {exc}", file=sys.stderr)
         return 2
-    except RuntimeError as exc:  # no C compiler: the fallback callbacks cannot travel with a file
+    except RuntimeError as exc:  # no C compiler: the reference callbacks cannot travel with a file
         print(f"vswrist export: the compiled plugin is needed and unavailable: {str(exc).splitlines()[0]}",
               file=sys.stderr)
         return 2

@@ -1,5 +1,5 @@
-"""The VS-Wrist's sinh springs and motor setpoint dynamics inside MuJoCo's substeps: an engine plugin in C,
-with Python callbacks as the fallback where no C compiler is available.
+"""The VS-Wrist's sinh springs and motor setpoint dynamics inside MuJoCo's substeps: an engine plugin in C, with
+the same physics as Python callbacks for reference (``VSWRIST_NATIVE=0``).
 
 The compiled path registers two MuJoCo engine plugins (``mjpPlugin``), ``vswrist.drive`` (passive force and
 actuator capability: one instance per motor, the series spring and the setpoint dynamics, configured per
@@ -13,11 +13,13 @@ The C source (``csrc/vswrist_plugin.c``, built by ``plugin_lib``) is compiled wi
 the headers and library shipped in the ``mujoco`` wheel, into a user cache directory (nothing is downloaded),
 once per source, flags, compiler and MuJoCo installation (``plugin_lib.library_key``).
 
-Fallback (no compiler, or ``VSWRIST_NATIVE=0``): the same physics as MuJoCo's process-global callbacks
-``mjcb_passive`` / ``mjcb_act_dyn`` written in Python (correct, several times slower), reading each model's
-parameters from its custom numeric ``vswrist_spring`` and actuator ``dynprm`` (``physics="callbacks"``);
-models without those fields are passed to whatever callback was installed before. Such a model cannot be
-exported: outside this package nothing applies its springs. ``backend()`` says which path is active.
+Without a C compiler ``install`` raises ``plugin_lib.NativeBuildError``, which says how to get one: there is
+one physics path. The reference (``VSWRIST_NATIVE=0`` or ``install("python")``, for tests and comparisons): the
+same physics as MuJoCo's process-global callbacks ``mjcb_passive`` / ``mjcb_act_dyn`` written in Python (correct,
+several times slower), reading each model's parameters from its custom numeric ``vswrist_spring`` and actuator
+``dynprm`` (``physics="callbacks"``); models without those fields are passed to whatever callback was installed
+before. Such a model cannot be exported: outside this package nothing applies its springs. ``backend()`` says
+which path is active.
 """
 
 from __future__ import annotations
@@ -25,15 +27,14 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-import warnings
 
 import mujoco
 import numpy as np
 
-from .plugin_lib import (CLOSURE_PLUGIN, DRIVE_PLUGIN, PLUGIN_SOURCE, compile_library, load_plugin,  # noqa: F401
-                         mujoco_entry_point, plugin_library)
+from .plugin_lib import (CLOSURE_PLUGIN, DRIVE_PLUGIN, PLUGIN_SOURCE, NativeBuildError,  # noqa: F401
+                         compile_library, load_plugin, mujoco_entry_point, native_build_error, plugin_library)
 
-# The fallback's parameters, which ``builder`` writes into a callbacks model as custom numerics: the springs'
+# The reference's parameters, which ``builder`` writes into a callbacks model as custom numerics: the springs'
 # (K, delta0, then the spring and motor joints' addresses), the loop-closure monitor's (userdata slot, coupler
 # body, end bodies) and a tag marking the model's motors as this package's
 SPRING_TAG = "vswrist_spring"
@@ -46,7 +47,7 @@ _backend: str | None = None
 _py_prev: dict[str, object] = {}
 
 
-# ----------------------------------------------------------------------------------- Python fallback
+# ---------------------------------------------------------------------------------- Python reference
 def _spring_field(m) -> np.ndarray | None:
     try:
         f = m.numeric(SPRING_TAG)
@@ -122,10 +123,12 @@ def _py_act_dyn(m, d, i) -> float:
 # ------------------------------------------------------------------------------------------ install
 def install(prefer: str = "auto") -> str:
     """Make the springs and motors available to models built from now on; returns the backend, "c" (the
-    compiled plugin) or "python" (the fallback callbacks). Idempotent.
+    compiled plugin) or "python" (the reference callbacks). Idempotent.
 
-    "c" loads the plugin library and removes the fallback callbacks if this module installed them: no global
-    callback remains. ``prefer="python"`` forces the fallback (for comparison), as does ``VSWRIST_NATIVE=0``.
+    "c" (and "auto", its other name) loads the plugin library, compiling it at first use, and removes the
+    reference callbacks if this module installed them: no global callback remains; without a compiler it raises
+    ``NativeBuildError``. ``prefer="python"`` installs the reference (for tests and comparisons), as does
+    ``VSWRIST_NATIVE=0``.
     """
     global _backend
     if prefer not in ("auto", "c", "python"):
@@ -135,21 +138,19 @@ def install(prefer: str = "auto") -> str:
     if prefer != "python":
         try:
             load_plugin()
-            _uninstall_python()
-            _backend = "c"
-            return _backend
         except (OSError, RuntimeError) as exc:
-            if prefer == "c":
-                raise
-            warnings.warn(f"VS-Wrist plugin unavailable ({exc}); using the slower Python callbacks",
-                          RuntimeWarning, stacklevel=2)
+            raise native_build_error("MuJoCo plugin (the springs and motors, model/csrc/vswrist_plugin.c)",
+                                     exc) from exc
+        _uninstall_python()
+        _backend = "c"
+        return _backend
     ensure_callbacks()
     _backend = "python"
     return _backend
 
 
 def ensure_callbacks() -> None:
-    """Put the fallback callbacks in place (again), for models built with ``physics="callbacks"``."""
+    """Put the reference callbacks in place (again), for models built with ``physics="callbacks"``."""
     if mujoco.get_mjcb_passive() is not _py_passive:
         _py_prev["passive"] = mujoco.get_mjcb_passive()
         mujoco.set_mjcb_passive(_py_passive)
@@ -185,7 +186,7 @@ def _uninstall_python() -> None:
 
 
 def uninstall() -> None:
-    """Remove the fallback callbacks (restoring the previous ones). The plugin library stays loaded (a
+    """Remove the reference callbacks (restoring the previous ones). The plugin library stays loaded (a
     shared library cannot be unloaded safely); it acts only on models that name its plugins."""
     global _backend
     _uninstall_python()
@@ -202,7 +203,7 @@ def installed() -> bool:
 
 
 def backend() -> str | None:
-    """"c" (plugin), "python" (fallback callbacks), or None when neither was installed."""
+    """"c" (plugin), "python" (reference callbacks), or None when neither was installed."""
     return _backend
 
 

@@ -42,6 +42,21 @@ def plugin_defines() -> dict[str, str]:
 _plugin_path: Path | None = None  # the plugin library loaded into this process, if any
 
 
+class NativeBuildError(RuntimeError):
+    """The compiled physics (the C plugin or the C++ batched advance) could not be built or loaded. The package
+    has one physics path, the compiled one; the Python callbacks are its reference, run only on request
+    (``VSWRIST_NATIVE=0``), so a missing compiler is an error that says what to do rather than a silent slowdown."""
+
+
+def native_build_error(what: str, exc: BaseException) -> NativeBuildError:
+    """The error for a ``what`` (the plugin, the advance) that did not build, with the build's own message."""
+    return NativeBuildError(
+        f"vswrist-gym compiles its {what} at first use and could not: {exc}. Install a C and C++ compiler "
+        f"(Debian/Ubuntu: apt install gcc g++; Fedora: dnf install gcc gcc-c++; macOS: xcode-select --install), "
+        f"or set VSWRIST_NATIVE=0 to run the Python reference physics (several times slower, one thread; meant "
+        f"for tests and comparisons)")
+
+
 def _mujoco_dir() -> Path:
     return Path(mujoco.__file__).resolve().parent
 

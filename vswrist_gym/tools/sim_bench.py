@@ -2,7 +2,7 @@
 
 Prints, per physics substep: the bare ``mj_step`` (the same wrist without springs and motor low-pass:
 ``physics="bare"``), the full substep (sinh springs + motor dynamics in the MuJoCo plugin, inside ``mj_step``;
-and the Python-callback fallback) and their ratio; the
+and the Python-callback reference) and their ratio; the
 substeps per second and the real-time factor of the default path. ``--sweep`` adds the timestep trade-off:
 static-stiffness error against the analytic model, speed, and the loop-closure error under random references:
 worst, median and least over seeds, and how it scales with the step.
@@ -126,7 +126,7 @@ def _time_python_loop(sim: WristSim, refs: np.ndarray, control_dt: float, second
 def speed(preset: str, seconds: float, rounds: int, control_dt: float, with_python: bool) -> dict:
     sim = WristSim(preset, backend="c")
     fallback = WristSim(preset, backend="python") if with_python else None
-    native.install("c")  # the fallback's callbacks stay out of the plugin's timings
+    native.install("c")  # the reference's callbacks stay out of the plugin's timings
     refs = _reference_schedule(sim, 64)
     res: dict[str, list[float]] = {"bare": [], "full_c": [], "ratio": [], "python_loop": [],
                                    "python_callbacks": []}
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  full, C plugin (default)             {r['full_c'] * 1e6:8.2f} us   {1 / r['full_c']:10.0f} substeps/s   "
               f"ratio {r['ratio']:.3f} (median of paired windows; quartiles {r['ratio_iqr'][0]:.3f}-"
               f"{r['ratio_iqr'][1]:.3f})")
-        rows = [("full, Python callbacks (fallback)", "python_callbacks"),
+        rows = [("full, Python callbacks (reference)", "python_callbacks"),
                 ("Python loop, mj_step per substep", "python_loop")]
         for label, key in rows:
             if key in r:
