@@ -225,3 +225,21 @@ def test_benchmark_end_to_end(tmp_path):
     run = doc["cells"]["stiffness/ppo"]["runs"]["0"]
     assert len(run["returns"]) == len(run["frozen_returns"]) == 100
     assert doc["gate"]["reset_seeds"][:2] == [reset_seed(HELDOUT_EVAL_SEEDS[0], 0), reset_seed(HELDOUT_EVAL_SEEDS[0], 1)]
+
+
+@pytest.mark.slow
+def test_jobs_change_nothing_but_the_wall_time(tmp_path):
+    """`--jobs 2` trains the seeds in two processes at once; every run's numbers equal those of one job, and the
+    runs are stored in seed order."""
+    docs = {}
+    for jobs in (1, 2):
+        out = tmp_path / f"out{jobs}"
+        rc = benchmark.main(["--tasks", "VSWrist/Hammer-v1", "--tracks", "stiffness", "--algos", "ppo",
+                             "--train-seeds", "1", "0", "--budget", "256", "--out", str(out), "--runs-dir",
+                             str(tmp_path / f"runs{jobs}"), "--gate-dir", str(GATE_DIR), "--jobs", str(jobs)])
+        assert rc == 0
+        docs[jobs] = json.loads((out / "Hammer-v1.json").read_text())["cells"]["stiffness/ppo"]["runs"]
+    assert list(docs[2]) == ["0", "1"]
+    for s in ("0", "1"):
+        for key in ("returns", "frozen_returns", "mean_commands", "success"):
+            assert docs[1][s][key] == docs[2][s][key]

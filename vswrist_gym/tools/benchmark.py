@@ -263,9 +263,33 @@ def _stamp(cell: dict, seed: int) -> None:
         "machine": f"{platform.node()}, {platform.machine()}, {os.cpu_count()} cores"}
 
 
+def _seed_run(env_id: str, algo: str, track: str, best_constant: float, seed: int, runs_dir: Path, budget: int,
+              log=print) -> dict:
+    """One training seed of one cell: trained, then scored on the held-out episodes (what the result file keeps)."""
+    t0 = time.time()
+    run_dir = train_cell(env_id, algo, track, best_constant, seed, runs_dir, budget, log=log)
+    run = evaluate_run(run_dir, env_id, freeze=track != "posture")
+    return {"run_dir": str(run_dir), "seconds": round(time.time() - t0, 1), **run}
+
+
+def _worker_init(threads: int) -> None:
+    """A ``--jobs`` worker: one torch thread, and its share of the cores for the batch's physics threads."""
+    from vswrist_gym.agents.procs import limit_threads
+    from vswrist_gym.envs.batch import THREADS_ENV
+
+    os.environ[THREADS_ENV] = str(threads)
+    limit_threads(1)
+
+
+def _seed_run_quiet(args: tuple) -> dict:
+    return _seed_run(*args, log=lambda *a: None)
+
+
 def run_task(env_id: str, out: Path, runs_dir: Path, gate_dir: Path, tracks, algos, seeds, budget: int | None = None,
-             command: str = "", log=print) -> dict:
-    """Every cell of one task, seed by seed, each saved to OUT/<Task>-vN.json as it is done (done ones skipped)."""
+             command: str = "", log=print, jobs: int = 1) -> dict:
+    """Every cell of one task, seed by seed, each saved to OUT/<Task>-vN.json as it is done (done ones skipped).
+    ``jobs`` > 1 trains that many seeds at once, each in its own process with its share of the cores; a run's
+    numbers do not depend on it (every run is seeded, and the batch's threads step as in sequence)."""
     from vswrist_gym.tools.gate import _save
 
     path = result_path(out, env_id)
@@ -283,6 +307,7 @@ def run_task(env_id: str, out: Path, runs_dir: Path, gate_dir: Path, tracks, alg
         proto["budgets"][a] = budgets[a]
     if command and command not in doc.setdefault("commands", []):
         doc["commands"].append(command)
+    todo = []  # (track, algo, seed) still to run, in the order a single job runs them
     for track in tracks:
         for algo in algos:
             cell = doc["cells"].setdefault(f"{track}/{algo}", {"runs": {}})
@@ -291,19 +316,36 @@ def run_task(env_id: str, out: Path, runs_dir: Path, gate_dir: Path, tracks, alg
                 raise BenchmarkError(f"{path}: the {track}/{algo} runs were trained with another hyperparameter "
                                      f"entry than configs/{algo}.yaml's; move the file away to start over")
             cell["entry"] = entry
-            for s in seeds:
-                if str(s) in cell["runs"]:
-                    continue
-                t0 = time.time()
-                run_dir = train_cell(env_id, algo, track, gate["best_constant"], s, runs_dir, budgets[algo], log=log)
-                run = evaluate_run(run_dir, env_id, freeze=track != "posture")
-                cell["runs"][str(s)] = {"run_dir": str(run_dir), "seconds": round(time.time() - t0, 1), **run}
-                _stamp(cell, s)
-                _save(path, doc)
-                sc = seed_scores(cell["runs"][str(s)], gate["constant_returns"], gate["headroom"])
-                log(f"{env_id} {track}/{algo} seed {s}: {sc['vs_constant']:+.2f} over the constant, score "
-                    f"{sc['score']:+.2f}" + (f", freeze {sc['freeze']:+.2f}" if "freeze" in sc else "")
-                    + f" ({time.time() - t0:.0f} s)")
+            todo += [(track, algo, s) for s in seeds if str(s) not in cell["runs"]]
+
+    def done(track: str, algo: str, s: int, run: dict) -> None:
+        cell = doc["cells"][f"{track}/{algo}"]
+        cell["runs"][str(s)] = run
+        # seed order whatever order the jobs finish in, so that the file does not depend on --jobs
+        cell["runs"] = {k: cell["runs"][k] for k in sorted(cell["runs"], key=int)}
+        _stamp(cell, s)
+        _save(path, doc)
+        sc = seed_scores(run, gate["constant_returns"], gate["headroom"])
+        log(f"{env_id} {track}/{algo} seed {s}: {sc['vs_constant']:+.2f} over the constant, score "
+            f"{sc['score']:+.2f}" + (f", freeze {sc['freeze']:+.2f}" if "freeze" in sc else "")
+            + f" ({run['seconds']:.0f} s)")
+
+    args = {t: (env_id, t[1], t[0], gate["best_constant"], t[2], runs_dir, budgets[t[1]]) for t in todo}
+    if jobs <= 1:
+        for t in todo:
+            done(*t, _seed_run(*args[t], log=log))
+        return doc
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from vswrist_gym.envs.batch import default_threads
+
+    # spawn: the workers start clean rather than as forks of a process that has loaded torch
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_worker_init, initargs=(max(1, default_threads() // jobs),)) as pool:
+        futures = {pool.submit(_seed_run_quiet, args[t]): t for t in todo}
+        for fut in as_completed(futures):
+            done(*futures[fut], fut.result())
     return doc
 
 
@@ -401,7 +443,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", default=None, metavar="PATH",
                     help="rewrite the 'leaderboard' generated block of PATH (docs/leaderboard.md) from the JSON files")
     ap.add_argument("--table-only", action="store_true", help="compute nothing: print (and --write) the table")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="training seeds run at once, each in its own process with its share of the cores "
+                         "(default 1); the results do not depend on it")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f"--jobs must be a positive number of processes, got {args.jobs}")
     if args.budget is not None and args.budget < 1:
         ap.error(f"--budget must be a positive number of env steps, got {args.budget}")
     if len(set(args.train_seeds)) < 2 or min(args.train_seeds) < 0:
@@ -420,7 +467,7 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 run_task(env_id, out, Path(args.runs_dir), gate_dir, args.tracks, args.algos,
                          list(dict.fromkeys(args.train_seeds)), args.budget, command=command,
-                         log=lambda *a: print(*a, flush=True))
+                         log=lambda *a: print(*a, flush=True), jobs=args.jobs)
             except GateError as exc:
                 print(f"vswrist benchmark: {exc}", file=sys.stderr)
                 return 2
