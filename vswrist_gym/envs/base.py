@@ -85,27 +85,34 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
       None): validation of the ``task`` section, read as ``self.tp``), ``task_reward_terms`` (names of its extra
       reward terms), ``reads_sensors`` (False if it reads only poses: a cheaper update after each step);
 
-    and implements the hooks, each for one world (``self`` is the world; a batch calls them world by world, so
-    they may keep episode state on ``self`` and draw only from the ``rng`` they are given; the one exception is
-    ``_tracking_error``, which a batch calls once with every world's errors):
+    and ``task_state`` (``hooks.TaskHooks``): its own episode state, {name: (the shape of one world's value,
+    dtype)}, which every world keeps in its row of ``EpisodeState.task`` (a batch's (N, ...) arrays; each world's
+    read as an attribute through ``episode.task_field``); and implements the hooks. The per-step hooks and the
+    success are written over arrays of worlds, as class methods ``<hook>_worlds(worlds, ep, ids, ...)`` that read
+    (and write) the rows ``ids`` of the episode state ``ep``: a batch calls them once for its live worlds, the
+    single env with itself as a batch of one (``hooks`` has the contract; LoadHold and Impact are the examples).
+    A task not yet written so implements the one-world form instead (``_contact_force()``, ...: ``self`` is the
+    world, which keeps its episode state on ``self`` and draws only from the ``rng`` it is given), which a batch
+    calls world by world:
 
     * ``_scene(spec)``: add geometry to the MjSpec before compilation (``SceneMixin`` helpers in ``shared``:
       ``_add_tool_geom``, ``_add_touch_sensor``, ``add_mocap_box_body``); ``_scene_ids()``: look up ids after;
-    * ``_task_reset(rng) -> (u (2,), ps, stiffness command)``: sample the episode; optionally the class method
-      ``_reset_worlds(worlds)``: what the episode's set-up computes over the worlds that reset together (Hammer's
-      swing); ``_after_reset()``: place objects once the wrist stands at its initial posture (``tool_point``);
+    * ``_task_reset(rng) -> (u (2,), ps, stiffness command)``: sample the episode into this world's row of the
+      task state (``self._ep.task``); optionally the class method ``_reset_worlds(worlds)``: what the episode's
+      set-up computes over the worlds that reset together (Hammer's swing); ``_after_reset()``: place objects once
+      the wrist stands at its initial posture (``tool_point``);
     * ``_reference(t) -> (..., 3)``: the posture reference (RUD, FE, PS) at time t (s), a number or an array of
       times (written over arrays: each reset evaluates the episode's control instants in one call);
-    * ``_before_physics(t)``: external loads for the coming period (``self.sim.apply_wrench``), or, over arrays
-      of worlds, the class method ``_before_physics_worlds(worlds, t)`` (``WristSim.apply_wrenches``; a batch
-      then calls it once, the single env with a batch of one: Drill, LoadHold);
-    * ``_contact_force() -> float`` (N, after a step), ``_tracking_error(err)`` (the part of the error the
-      tracking reward counts, indexing the last axis only: ``err[..., 1:]``; it gets (3,) or (N, 3)),
-      ``_task_reward_terms(err) -> {name: unweighted value}``, ``_task_info() -> {name: number}`` (extra
-      ``info`` entries, the same keys every step), ``_success() -> bool``
-      (at the episode's last step, from ``self._history``), optionally ``_task_obs_terms()`` (``ObsTerm``s:
-      over arrays of worlds, ``of(measures)``, as LoadHold's and Drill's cues, or one world's ``fn()``, which a
-      batch calls world by world) and ``_validate_task()``.
+    * ``_before_physics_worlds(worlds, ep, ids)``: external loads for the coming period
+      (``WristSim.apply_wrenches``), or ``_before_physics(t)`` (``self.sim.apply_wrench``);
+    * ``_contact_force_worlds(worlds, ep, ids) -> (L,)`` (N, after a step), ``_tracking_error(err)`` (the part of
+      the error the tracking reward counts, indexing the last axis only: ``err[..., 1:]``; it gets (3,) or
+      (N, 3)), ``_task_reward_terms_worlds(worlds, ep, ids, err) -> {name: (L,) unweighted values}``,
+      ``_task_info_worlds(worlds, ep, ids) -> {name: (L,)}`` (extra ``info`` entries, the same keys every step),
+      ``_success_worlds(worlds, ep, ids) -> (L,) bool`` (at the episode's last step, from its history:
+      ``episode.episode_history``), optionally ``_task_obs_terms()`` (``ObsTerm``s: over arrays of worlds,
+      ``of(measures)``, as LoadHold's and Drill's cues, which read the task state with ``measures.state(name)``,
+      or one world's ``fn()``, which a batch calls world by world) and ``_validate_task()``.
 
     Everything else (actions, observations, noise, randomisation, rewards, info, divergence, rendering,
     pickling, batching) comes from the base and its mixins and needs no task code.
@@ -174,7 +181,7 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
         # the episode state (``episode``), before the simulator whose springs it holds; a batch makes it a row of its
         # own (``episode.share``). It starts ended: step() before the first reset() is refused, as after an
         # episode's end
-        self._ep = EpisodeState(1, self.episode_steps, n_act)
+        self._ep = EpisodeState(1, self.episode_steps, n_act, self.task_state)
 
         self._import_simulator()
         self._build_sim(self.nominal_params)

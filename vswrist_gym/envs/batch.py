@@ -42,6 +42,7 @@ from .base import VSWristEnv
 from .batch_physics import PhysicsMixin
 from .batch_step import STEP_METHODS, ArrayStepMixin
 from .episode import share
+from .hooks import over_arrays
 from .shared import PeriodMeanForce
 from .vector_info import VectorInfoMixin
 
@@ -129,11 +130,10 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         # what the array step needs to know of the task (the same for every world)
         cls = type(first)
         self._mode = first.cfg["action_mode"]
-        self._hook_before = (cls._before_physics is not VSWristEnv._before_physics
-                             or cls._before_physics_worlds.__func__ is not VSWristEnv._before_physics_worlds.__func__)
-        self._hook_contact = cls._contact_force is not VSWristEnv._contact_force
-        self._hook_reward = cls._task_reward_terms is not VSWristEnv._task_reward_terms
-        self._hook_info = cls._task_info is not VSWristEnv._task_info
+        # the hooks the task writes, in either form (``hooks``): the array step calls their form over arrays
+        self._hook_before, self._hook_contact, self._hook_reward, self._hook_info = (
+            getattr(cls, h) is not getattr(VSWristEnv, h) or over_arrays(cls, f"{h}_worlds")
+            for h in ("_before_physics", "_contact_force", "_task_reward_terms", "_task_info"))
         self._obs_size = first.obs_size
         self._obs_names = [t.name for t in first.obs_terms]
         self._obs_slices = dict(first.obs_slices)

@@ -5,15 +5,15 @@ Before the physics: action clipping and maps, the ``motor`` mode's map and the a
 ``posture_stiffness`` and ``residual``: ``AnalyticController.step_batch``) over arrays of worlds, the compliance
 mode's LM dynamics world by world, into the episode state's actions, motor references and the controllers'
 commands (``episode``: each world's controller keeps its command in its row); then the task's loads,
-``_before_physics_worlds`` (over arrays of worlds where the task writes them so: Drill, LoadHold; else each world's
-``_before_physics``).
+``_before_physics_worlds``.
 
 After the physics: every world's simulator is read (posture, deflections, rates, loop closure, the tool wrench: what
 ``batch_sim.gather_plan`` names, copied into one (N, .) array by the compiled advance on the physics threads, or in
 Python without it, and computed over arrays by ``BatchSim``'s reads), its reference (a row of the table its reset
-computed: ``_reference`` is written over arrays of times), its task hooks (``_contact_force``, ``_task_reward_terms``,
-``_task_info``, task observation terms) and its sensor noise (from its own generator, in the single env's order) run
-world by world; the observation, the reward terms and the info metrics are the single env's own functions over arrays
+computed: ``_reference`` is written over arrays of times) and its sensor noise (a row of the table its reset drew);
+the task's hooks run once for all the live worlds, in their form over arrays (``hooks``: the single env runs the same
+code on its one world; a task's hook or observation term written for one world is asked world by world); the
+observation, the reward terms and the info metrics are the single env's own functions over arrays
 (``observations.observe``, ``rewards.common_reward_terms``, ``weigh``, ``step_metrics``), and the rest is the single
 env's operations in its order, so world i of a batch is the single env with seed s + i (to the bit on one machine:
 ``tests/test_batch.py`` checks 1e-9). A task may change the step through its hooks, not by overriding one of the
@@ -42,14 +42,19 @@ class BatchMeasures:
     """``observations.observe``'s measures of a batch's live worlds after a step: (N, ...) arrays, and the reads
     of their simulators over arrays from the gathered rows ``G`` (``BatchSim``'s reads)."""
 
-    __slots__ = ("worlds", "bsim", "G", "posture", "deflections", "Q", "law", "contact", "lam", "prev_action",
-                 "target", "step", "time", "noise")
+    __slots__ = ("worlds", "task", "ids", "bsim", "G", "posture", "deflections", "Q", "law", "contact", "lam",
+                 "prev_action", "target", "step", "time", "noise")
 
-    def __init__(self, worlds, bsim, G, P, D, Q, law, contact, lam, prev_action, target, step, time, noise):
-        self.worlds, self.bsim, self.G, self.Q = worlds, bsim, G, Q
+    def __init__(self, worlds, task, ids, bsim, G, P, D, Q, law, contact, lam, prev_action, target, step, time,
+                 noise):
+        self.worlds, self.task, self.ids, self.bsim, self.G, self.Q = worlds, task, ids, bsim, G, Q
         self.posture, self.deflections, self.law, self.contact = P, D, law, contact
         self.lam, self.prev_action, self.target, self.step = lam, prev_action, target, step
         self.time, self.noise = time, noise
+
+    def state(self, name: str) -> np.ndarray:
+        """A field of the task's state (``TaskState``) of every world (N, ...)."""
+        return getattr(self.task, name)[self.ids]
 
     def each(self, name: str) -> np.ndarray:
         """A task attribute of every world (N,) (the episode's draws that a task's term reads)."""
@@ -101,16 +106,16 @@ class ArrayStepMixin:
             theta = np.array([e._motor_refs(a) for e, a in zip(worlds, A)])
         ep.put(ids, action=A, theta=theta)
         if self._hook_before:
-            type(first)._before_physics_worlds(worlds, ep.t[ids])
+            type(first)._before_physics_worlds(worlds, ep, ids)
         return theta
 
     def _finish(self, worlds: list, ids: np.ndarray, G: np.ndarray | None = None):
         """``VSWristEnv._finish_step`` of the live worlds (``ids``: their indices in the batch): the simulators'
         reads come gathered in ``G`` (rows of ``batch_sim.gather_plan``, filled by the compiled advance; None:
-        gathered here), the task hooks run world by world (in the single env's order, so each draws its noise from
-        its own generator as it would alone); the clock, the contact record, the measures' math, rewards,
-        observation and info run over arrays."""
+        gathered here); the clock, the contact record, the measures' math, the task's hooks (in the single env's
+        order), rewards, observation and info run over arrays."""
         first = worlds[0]
+        task = type(first)
         L = len(worlds)
         dt = first.ctrl_dt
         light = first._light_sync
@@ -127,8 +132,8 @@ class ArrayStepMixin:
         if noise:
             NZ = ep.noise[ids, steps]
             ep.put(ids, nz=NZ)
-        # world by world: the task's contact force (``_measure``'s hook)
-        contact = [e._contact_force() for e in worlds] if hook_contact else [0.0] * L
+        # the task's contact force (``_measure``'s hook)
+        contact = task._contact_force_worlds(worlds, ep, ids) if hook_contact else np.zeros(L)
         sims = [e.sim for e in worlds]
         redo = np.flatnonzero(ep.diverged[ids]).tolist()
         for k in redo:  # MuJoCo reset this world's state: bring it up to date as _measure does
@@ -152,12 +157,11 @@ class ArrayStepMixin:
         energy = stored_energy(D, law)
         T = ep.references[ids, steps]  # the step's row of each world's reference table
         err = wrap_angle(P - T)
-        contact_a = np.array(contact)
         closure_a = np.array(closure)
         # the contact record (``VSWristEnv._record_step``), over arrays
-        peak, sumsq = record_contact(ep.peak_contact[ids], ep.sum_contact_sq[ids], contact_a)
+        peak, sumsq = record_contact(ep.peak_contact[ids], ep.sum_contact_sq[ids], contact)
         # the measures and the record into the worlds' rows, before the task hooks below read them
-        ep.put(ids, posture=P, defl=D, energy=energy, contact=contact_a, closure=closure_a, peak_contact=peak,
+        ep.put(ids, posture=P, defl=D, energy=energy, contact=contact, closure=closure_a, peak_contact=peak,
                sum_contact_sq=sumsq, target=T)
         record_history(ep, ids, steps, err)
         lam = ep.lam[ids]
@@ -168,11 +172,8 @@ class ArrayStepMixin:
         time_up, cut, truncated = episode_end(terminated, steps, first.episode_steps, closure_a, first._closure_warn,
                                               first._closure_truncate)
 
-        # world by world: the task's reward terms
-        task_terms = {}
-        if self._hook_reward:
-            task_raw = [e._task_reward_terms(er) for e, er in zip(worlds, err)]
-            task_terms = {name: np.array([d[name] for d in task_raw]) for name in first.task_reward_terms}
+        # the task's reward terms
+        task_terms = task._task_reward_terms_worlds(worlds, ep, ids, err) if self._hook_reward else {}
         # after the reward hooks, as the single env's _finish_step
         ep.put(ids, prev_action=PA, ended=terminated | truncated)
 
@@ -180,18 +181,17 @@ class ArrayStepMixin:
         cols, reward = first._step_reward(err, energy, A, prev, terminated, task_terms)
 
         # observation (the single env's terms, over arrays)
-        measures = BatchMeasures(worlds, bsim, G, P, D, Q, law, contact_a, lam, PA, T, steps, t, NZ)
+        measures = BatchMeasures(worlds, ep.task, ids, bsim, G, P, D, Q, law, contact, lam, PA, T, steps, t, NZ)
         obs = observe(first.obs_terms, measures, *first._obs_bounds)
 
         # info (the single env's metrics, over arrays)
         success = np.zeros(L, dtype=bool)
-        for k in np.flatnonzero(time_up & ~cut).tolist():
-            success[k] = bool(worlds[k]._success())
-        cols.update(step_metrics(err, contact_a, peak, sumsq, steps, energy, lam, closure_a,
+        final = np.flatnonzero(time_up & ~cut)
+        if final.size:
+            success[final] = task._success_worlds([worlds[k] for k in final.tolist()], ep, ids[final])
+        cols.update(step_metrics(err, contact, peak, sumsq, steps, energy, lam, closure_a,
                                  first._closure_warn, t, success))
         if self._hook_info:
-            extra = [e._task_info() for e in worlds]
-            for key in extra[0]:
-                cols[key] = np.array([x[key] for x in extra])
+            cols.update(task._task_info_worlds(worlds, ep, ids))
         cols["posture_error_vec"] = err
         return obs, reward, terminated, truncated, cols, failures

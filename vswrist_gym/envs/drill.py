@@ -115,9 +115,9 @@ class DrillEnv(VSWristEnv):
         return np.stack([np.full_like(t, self._u[0]), np.full_like(t, self._u[1]), ps], axis=-1)
 
     @classmethod
-    def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
+    def _before_physics_worlds(cls, worlds: list, ep, ids) -> None:
         # the wrench is held over the period: sample it at the period's middle
-        tc = t + 0.5 * worlds[0].ctrl_dt
+        tc = ep.t[ids] + 0.5 * worlds[0].ctrl_dt
         load = np.array([e._load for e in worlds])
         on = (load[:, 0] <= tc) & (tc < load[:, 1])
         flags = on.tolist()

@@ -29,17 +29,61 @@ step's updates of it as functions, state in, state out (over arrays of worlds, o
   only where the task's sensor noise is on;
 * the history that the success criteria read (``history_error`` (N, steps, 3): the posture error, rad;
   ``history_energy`` (N, steps), J; ``history_contact`` (N, steps), N): row j holds step j + 1, so a world's
-  first ``step`` rows are its episode so far.
+  first ``step`` rows are its episode so far;
+* the task's own state (``task``: a ``TaskState`` of the fields its ``task_state`` declares, drawn by its reset
+  and read, or written, by its hooks over arrays of worlds: ``hooks``).
 
 A batch owns one of N worlds and each of its worlds holds a one-world view of it (``share``), so that the batch
 updates every world with one array operation and the world reads its own row, with nothing copied between them.
 The single env owns one of a world and writes its row; its attributes (``_step``, ``_t``, ``_posture``, ...:
-``EpisodeStateMixin``) read it, as the tasks' hooks do.
+``EpisodeStateMixin``) read it. A task's hooks written over arrays of worlds (``hooks``) read and write the rows of
+the worlds they are given, the single env's being ``ONE``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+ONE = slice(0, 1)  # the single env's rows of its state: it runs the code written over arrays of worlds on its one
+
+
+class TaskState:
+    """A task's episode state of N worlds: each field its ``task_state`` declares ({name: (the shape of one world's
+    value, dtype)}) as an (N, ...) array, so that its hooks read and write every world's in one operation."""
+
+    def __init__(self, n: int, fields: dict):
+        for name, (shape, dtype) in fields.items():
+            setattr(self, name, np.zeros((n,) + tuple(shape), dtype=dtype))
+
+    def put(self, ids, **values) -> None:
+        """The new state of the worlds ``ids`` (an index, a slice or an array of them): ``values`` {field: array}."""
+        for f, v in values.items():
+            getattr(self, f)[ids] = v
+
+    def row(self, i: int) -> TaskState:
+        """World i's state: (1, ...) views of these arrays."""
+        out = TaskState.__new__(TaskState)
+        for f, v in vars(self).items():
+            setattr(out, f, v[i:i + 1])
+        return out
+
+    @staticmethod
+    def concatenate(states: list) -> TaskState:
+        """One state of the worlds of ``states``, in order."""
+        out = TaskState.__new__(TaskState)
+        for f in vars(states[0]):
+            setattr(out, f, np.concatenate([getattr(s, f) for s in states]))
+        return out
+
+
+def task_field(name: str) -> property:
+    """A world's read-only attribute over its row of task-state field ``name``: a Python number (a one-number
+    field) or a view of the row (an array field), for the task's per-world code (its reference, its scene) and the
+    tools that read an episode's draws."""
+    def get(self):
+        v = getattr(self._ep.task, name)
+        return v.item(0) if v.ndim == 1 else v[0]
+    return property(get, doc=f"This world's ``{name}`` (its row of the task state).")
 
 
 class EpisodeState:
@@ -49,10 +93,12 @@ class EpisodeState:
     FIELDS = ("spring_K", "spring_delta0", "action", "theta", "command", "lam", "diverged", "latency", "step", "t", "ended",
               "peak_contact", "sum_contact_sq", "posture", "defl", "energy", "contact", "closure", "references",
               "target", "prev_action", "noise", "nz", "history_error", "history_energy", "history_contact")
-    __slots__ = FIELDS
+    __slots__ = FIELDS + ("task",)
 
-    def __init__(self, n: int, steps: int, n_act: int):
-        """``n`` worlds whose episodes last ``steps`` control steps, with actions of ``n_act`` numbers."""
+    def __init__(self, n: int, steps: int, n_act: int, task_fields: dict | None = None):
+        """``n`` worlds whose episodes last ``steps`` control steps, with actions of ``n_act`` numbers, of a task
+        whose own state has ``task_fields`` (``TaskState``)."""
+        self.task = TaskState(n, task_fields or {})
         self.spring_K = np.zeros(n)
         self.spring_delta0 = np.zeros(n)
         self.action = np.zeros((n, n_act))
@@ -86,15 +132,19 @@ class EpisodeState:
                "closure", "target", "prev_action")
 
     def clear(self, rows) -> None:
-        """The state a new episode starts from, in the worlds ``rows`` (an index or an array of them)."""
+        """The state a new episode starts from, in the worlds ``rows`` (an index or an array of them): the task's
+        own included, which its reset then draws."""
         for f in self.CLEARED:
             getattr(self, f)[rows] = 0
+        for v in vars(self.task).values():
+            v[rows] = 0
 
     def row(self, i: int) -> EpisodeState:
         """World i's state: (1, ...) views of these arrays (writes to either are seen by both)."""
         out = EpisodeState.__new__(EpisodeState)
         for f in self.FIELDS:
             setattr(out, f, getattr(self, f)[i:i + 1])
+        out.task = self.task.row(i)
         return out
 
     def put(self, ids, **values) -> None:
@@ -103,10 +153,10 @@ class EpisodeState:
             getattr(self, f)[ids] = v
 
     def __getstate__(self):
-        return {f: getattr(self, f) for f in self.FIELDS}
+        return {f: getattr(self, f) for f in self.FIELDS + ("task",)}
 
     def __setstate__(self, state):
-        for f in self.FIELDS:
+        for f in self.FIELDS + ("task",):
             setattr(self, f, state[f])
 
 
@@ -116,6 +166,7 @@ def share(worlds: list) -> EpisodeState:
     out = EpisodeState.__new__(EpisodeState)
     for f in EpisodeState.FIELDS:
         setattr(out, f, np.concatenate([getattr(e._ep, f) for e in worlds]))
+    out.task = TaskState.concatenate([e._ep.task for e in worlds])
     for i, e in enumerate(worlds):
         e._use_episode_state(out.row(i))
     return out
@@ -147,6 +198,17 @@ def record_history(ep: EpisodeState, ids, steps, err) -> None:
     ep.history_error[ids, j] = err
     ep.history_energy[ids, j] = ep.energy[ids]
     ep.history_contact[ids, j] = ep.contact[ids]
+
+
+def episode_history(ep: EpisodeState, ids) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The episode so far of the worlds ``ids``, which have taken the same number of steps k (the success criteria
+    read it at the episode's last step): their posture errors (L, k, 3), stored energies (L, k) and contact forces
+    (L, k)."""
+    steps = ep.step[ids]
+    k = steps.item(0)
+    if (steps != k).any():
+        raise ValueError(f"the worlds' histories differ in length ({steps.tolist()} steps)")
+    return ep.history_error[ids, :k], ep.history_energy[ids, :k], ep.history_contact[ids, :k]
 
 
 class EpisodeStateMixin:

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..sim import WristSim
 from .base import VSWristEnv
+from .episode import episode_history, task_field
 from .shared import smoothstep
 
 
@@ -61,12 +62,22 @@ class LoadHoldEnv(VSWristEnv):
     # when the load comes and soft (no preload energy) until shortly before
     cue_lead_s = 0.5
 
+    @property
+    def task_state(self) -> dict:
+        """The episode's draws: its references (``n_targets`` of the rows of ``targets``, rad, and the times at
+        which each next one begins, ``switch``, s) and its load (``mass``, kg; ``onset``, s; ``load_force``, N)."""
+        n = self.tp["n_targets"][1]
+        return {"targets": ((n, 3), float), "switch": ((n - 1,), float), "n_targets": ((), np.int64),
+                "mass": ((), float), "onset": ((), float), "load_force": ((3,), float)}
+
+    _mass, _onset, _load_force = task_field("mass"), task_field("onset"), task_field("load_force")
+
     def _task_obs_terms(self):
         from .observations import ObsTerm, flag_column
         lead = self.cue_lead_s
         return [ObsTerm("load_cue", 1, "-", f"1 from {lead:g} s before the load arrives on (the announced load: "
                         "LoadHold-v1 on), else 0", None, 0.0, 1.0,
-                        lambda m: flag_column(m.time + 1e-12 >= m.each("_onset") - lead))]
+                        lambda m: flag_column(m.time + 1e-12 >= m.state("onset") - lead))]
 
     def _sample_posture(self, rng) -> np.ndarray:
         f = self.tp["target_fraction"]
@@ -77,13 +88,12 @@ class LoadHoldEnv(VSWristEnv):
 
     def _task_reset(self, rng):
         n = int(rng.integers(self.tp["n_targets"][0], self.tp["n_targets"][1] + 1))
-        self._targets = [self._sample_posture(rng) for _ in range(n)]
-        for t in self._targets[1:]:  # one PS angle per episode: the load acts on RUD/FE, and PS steps are slow
-            t[2] = self._targets[0][2]
+        targets = np.array([self._sample_posture(rng) for _ in range(n)])
+        targets[1:, 2] = targets[0, 2]  # one PS angle per episode: the load acts on RUD/FE, and PS steps are slow
         T = self.cfg["episode_s"]
-        self._switch = np.sort(rng.uniform(0.2 * T, 0.8 * T, n - 1)) if n > 1 else np.zeros(0)
-        self._mass = float(rng.uniform(*self.tp["load_mass"]))
-        self._onset = float(rng.uniform(*self.tp["load_onset"]))
+        switch = np.sort(rng.uniform(0.2 * T, 0.8 * T, n - 1)) if n > 1 else np.zeros(0)
+        mass = float(rng.uniform(*self.tp["load_mass"]))
+        onset = float(rng.uniform(*self.tp["load_onset"]))
         g = np.asarray(self.params.environment.gravity, dtype=float)
         gn = np.linalg.norm(g)
         down = g / gn if gn > 0 else np.array([0.0, 0.0, -1.0])
@@ -92,33 +102,51 @@ class LoadHoldEnv(VSWristEnv):
         perp /= np.linalg.norm(perp)
         ang = rng.uniform(0.0, self.tp["load_cone"])
         direction = np.cos(ang) * down + np.sin(ang) * np.cross(perp, down)
-        self._load_force = self._mass * max(gn, 9.81) * direction
-        u0 = self._targets[0]
-        return u0[:2], float(u0[2]), float(rng.uniform(-1.0, 1.0))
+        ts = self._ep.task  # this world's row (its unused targets stay zeros)
+        ts.targets[0, :n], ts.switch[0, :n - 1] = targets, switch
+        ts.put(0, n_targets=n, mass=mass, onset=onset, load_force=mass * max(gn, 9.81) * direction)
+        return targets[0, :2], float(targets[0, 2]), float(rng.uniform(-1.0, 1.0))
 
     def _reference(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=float)[..., None]
-        ref = np.broadcast_to(self._targets[0], t.shape[:-1] + (3,))
-        for k, ts in enumerate(self._switch):
-            step = smoothstep((t - ts) / self.blend_s) * (self._targets[k + 1] - self._targets[k])
-            ref = np.where(t > ts, ref + step, ref)
+        ts = self._ep.task
+        n = ts.n_targets.item(0)
+        targets = ts.targets[0, :n]
+        ref = np.broadcast_to(targets[0], t.shape[:-1] + (3,))
+        for k, start in enumerate(ts.switch[0, :n - 1]):
+            step = smoothstep((t - start) / self.blend_s) * (targets[k + 1] - targets[k])
+            ref = np.where(t > start, ref + step, ref)
         return np.array(ref)
 
     @classmethod
-    def _before_physics_worlds(cls, worlds: list, t: np.ndarray) -> None:
-        # the load acts from the first control period that starts at or after its onset
-        ws = [e for e, tk in zip(worlds, t.tolist()) if tk + 1e-12 >= e._onset]
-        if ws:
-            wrench = np.zeros((len(ws), 6))
-            wrench[:, :3] = [e._load_force for e in ws]
-            WristSim.apply_wrenches([e.sim for e in ws], wrench)
+    def _before_physics_worlds(cls, worlds: list, ep, ids) -> None:
+        on, wrench = load_wrenches(ep.t[ids], ep.task.onset[ids], ep.task.load_force[ids])
+        if on.size:
+            WristSim.apply_wrenches([worlds[k].sim for k in on.tolist()], wrench)
 
     def load_info(self) -> dict:
         """The episode's hidden load (for analysis, not for the agent): mass kg, onset s, force N."""
         return {"mass": self._mass, "onset": self._onset, "force": self._load_force.copy()}
 
-    def _success(self) -> bool:
-        k = self._window(self.tp["success_window"])
-        err = np.array(self._history["error"][-k:])[:, :2]
-        rms = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
-        return rms < self.tp["success_error"] and float(np.mean(self._history["energy"])) < self.tp["success_energy"]
+    @classmethod
+    def _success_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        tp = worlds[0].tp
+        err, energy, _ = episode_history(ep, ids)
+        return hold_success(err, energy, worlds[0]._window(tp["success_window"]), tp["success_error"],
+                            tp["success_energy"])
+
+
+def load_wrenches(t, onset, force) -> tuple[np.ndarray, np.ndarray]:
+    """The worlds whose load acts in the control period that starts at their time ``t`` (indices: from the first
+    period that starts at or after their ``onset``) and its wrench on each of them (M, 6), from their load forces
+    ``force`` (N, 3)."""
+    on = np.flatnonzero(t + 1e-12 >= onset)
+    return on, np.concatenate([force[on], np.zeros((on.size, 3))], axis=1)
+
+
+def hold_success(err, energy, window: int, max_error: float, max_energy: float) -> np.ndarray:
+    """Whether each world held its references (L,): the RMS (RUD, FE) error over the last ``window`` steps of its
+    errors ``err`` (L, k, 3) below ``max_error`` and its mean stored energy ``energy`` (L, k) below ``max_energy``."""
+    e = err[:, -window:, :2]
+    rms = np.sqrt(np.mean(np.sum(e ** 2, axis=2), axis=1))
+    return (rms < max_error) & (np.mean(energy, axis=1) < max_energy)

@@ -71,10 +71,11 @@ def coupler_stiffness(Ja, sigma) -> np.ndarray:
 def observe(terms: list, measures, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """The observation of the worlds ``measures`` describes (float32 (..., size)): every term in order, clipped
     to the bounds (NaN passes through). ``measures`` holds the step's arrays (``posture``, ``deflections``,
-    ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``time``, ``noise``), each world's task
-    attribute ``each(name)``, the simulator's reads that only some terms need (``posture_rate()``,
-    ``motor_angles()``, ``tool_wrench()``, ``jacobian()``: J_a (..., 3 legs, 2)) and ``task_term(term)``, a
-    task's own per-world term (``ObsTerm.fn``) over its worlds."""
+    ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``time``, ``noise``), the worlds' fields
+    of the task's state ``state(name)`` (``episode.TaskState``), each world's task attribute ``each(name)``, the
+    simulator's reads that only some terms need (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``,
+    ``jacobian()``: J_a (..., 3 legs, 2)) and ``task_term(term)``, a task's own per-world term (``ObsTerm.fn``)
+    over its worlds."""
     raw = np.concatenate([t.of(measures) if t.of is not None else measures.task_term(t) for t in terms], axis=-1)
     return np.minimum(np.maximum(raw, low), high).astype(np.float32)
 
@@ -91,6 +92,9 @@ class WorldMeasures:
         self.posture, self.deflections, self.law = ep.posture[0], ep.defl[0], env.params
         self.contact, self.lam, self.prev_action = ep.contact.item(0), ep.lam.item(0), ep.prev_action[0]
         self.target, self.step, self.time, self.noise = ep.target[0], ep.step.item(0), ep.t.item(0), env._nz
+
+    def state(self, name: str):
+        return getattr(self.env._ep.task, name)[0]
 
     def each(self, name: str):
         return getattr(self.env, name)
