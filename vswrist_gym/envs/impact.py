@@ -20,8 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 from .base import VSWristEnv
-from .rewards import FORCE_CAP
-from .shared import FINGER_END, add_mocap_box_body, quat_from_matrix, smoothstep
+from .episode import episode_history, task_field
+from .rewards import FORCE_CAP, squared_norms
+from .shared import FINGER_END, add_mocap_box_body, quat_from_matrix, sensor_values, smoothstep
 
 WALL_HALF = (0.01, 0.03, 0.035)  # m: thickness (along the motion), along the tool, across
 
@@ -53,6 +54,11 @@ class ImpactEnv(VSWristEnv):
     }
     task_reward_terms = ("force",)
     contact_threshold = 0.5  # N: a step counts as "in contact" above this force
+    # the episode's draws: the motion (RUD, FE from fe0 to fe1 in ``move`` s and back, PS: rad) and the wall
+    # (whether it stands, at which fraction of the way)
+    task_state = {"rud": ((), float), "fe0": ((), float), "fe1": ((), float), "move": ((), float),
+                  "ps": ((), float), "obstacle": ((), bool), "frac": ((), float)}
+    _rud, _fe0, _fe1, _move, _ps, _obstacle, _frac = map(task_field, task_state)
 
     def _scene(self, spec) -> None:
         self._tip_x = FINGER_END + self.tp["tool_length"]
@@ -67,17 +73,18 @@ class ImpactEnv(VSWristEnv):
         self._mocap = int(self.model.body("task_wall").mocapid[0])
 
     def _task_reset(self, rng):
-        self._rud = float(rng.uniform(*self.tp["rud_range"]))
-        self._fe0 = float(rng.uniform(*self.tp["fe_start"]))
-        self._fe1 = float(rng.uniform(*self.tp["fe_end"]))
+        tp = self.tp
+        rud = float(rng.uniform(*tp["rud_range"]))
+        fe0 = float(rng.uniform(*tp["fe_start"]))
+        fe1 = float(rng.uniform(*tp["fe_end"]))
         if rng.random() < 0.5:
-            self._fe0, self._fe1 = self._fe1, self._fe0
-        self._move = float(rng.uniform(*self.tp["move_s"]))
-        self._ps = float(rng.uniform(*self.tp["ps_range"]))
-        self._obstacle = bool(rng.random() < self.tp["obstacle_probability"])
-        self._frac = float(rng.uniform(*self.tp["obstacle_fraction"]))
-        self._free_err: list[float] = []
-        return np.array([self._rud, self._fe0]), self._ps, float(rng.uniform(-1.0, 1.0))
+            fe0, fe1 = fe1, fe0
+        move = float(rng.uniform(*tp["move_s"]))
+        ps = float(rng.uniform(*tp["ps_range"]))
+        obstacle = bool(rng.random() < tp["obstacle_probability"])
+        frac = float(rng.uniform(*tp["obstacle_fraction"]))
+        self._ep.task.put(0, rud=rud, fe0=fe0, fe1=fe1, move=move, ps=ps, obstacle=obstacle, frac=frac)
+        return np.array([rud, fe0]), ps, float(rng.uniform(-1.0, 1.0))
 
     def _after_reset(self) -> None:
         if not self._obstacle:
@@ -103,14 +110,30 @@ class ImpactEnv(VSWristEnv):
         return np.stack([np.full_like(t, self._rud), self._fe0 + s * (self._fe1 - self._fe0),
                          np.full_like(t, self._ps)], axis=-1)
 
-    def _contact_force(self) -> float:
-        return float(self.data.sensordata[self._touch_adr])
+    @classmethod
+    def _contact_force_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        return sensor_values(worlds, worlds[0]._touch_adr)
 
-    def _task_reward_terms(self, err) -> dict:
-        if self._contact <= self.contact_threshold:
-            self._free_err.append(float(err @ err))
-        return {"force": -min(self._contact / self.cfg["scales"]["force"], FORCE_CAP) ** 2}
+    @classmethod
+    def _task_reward_terms_worlds(cls, worlds: list, ep, ids, err) -> dict:
+        return {"force": force_penalty(ep.contact[ids], worlds[0].cfg["scales"]["force"])}
 
-    def _success(self) -> bool:
-        rms = float(np.sqrt(np.mean(self._free_err))) if self._free_err else 0.0
-        return self._peak_contact < self.tp["success_force"] and rms < self.tp["success_error"]
+    @classmethod
+    def _success_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        tp = worlds[0].tp
+        err, _, contact = episode_history(ep, ids)
+        rms = np.array([free_rms(e, c, cls.contact_threshold) for e, c in zip(err, contact)])
+        return (ep.peak_contact[ids] < tp["success_force"]) & (rms < tp["success_error"])
+
+
+def force_penalty(contact, scale: float):
+    """The ``force`` term of contact forces ``contact`` (N): minus the square of the force in ``scale``s, capped at
+    ``FORCE_CAP`` (float_power: C's pow, the squaring of one world's Python number)."""
+    return -np.float_power(np.minimum(contact / scale, FORCE_CAP), 2.0)
+
+
+def free_rms(err, contact, threshold: float) -> float:
+    """One world's RMS posture error (rad) over the steps of its episode without contact (``contact`` at most
+    ``threshold``), from its posture errors ``err`` (k, 3) and contact forces ``contact`` (k,); 0 if none."""
+    sq = squared_norms(err[contact <= threshold])
+    return float(np.sqrt(np.mean(sq))) if sq.size else 0.0

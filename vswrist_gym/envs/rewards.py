@@ -49,7 +49,7 @@ def weigh(raw: dict, weights: dict) -> tuple[dict, np.ndarray | float]:
     return weighted, reward
 
 
-def _squared_norms(err: np.ndarray):
+def squared_norms(err: np.ndarray):
     """err . err of each world: one dot product per world (BLAS's order and rounding, which an in-order sum of
     squares may miss by an ulp)."""
     return err @ err if err.ndim == 1 else np.array([e @ e for e in err])
@@ -61,7 +61,7 @@ def step_metrics(err, contact, peak_contact, sum_contact_sq, step, energy, lam, 
     contact force now, its peak and sum of squares over the episode (N, N, N^2), the step count, elastic energy
     (J), lam (N m), the period's loop-closure peak, its warning level, the time (s) and the success flag."""
     return {
-        "posture_error": np.sqrt(_squared_norms(err)),
+        "posture_error": np.sqrt(squared_norms(err)),
         "contact_force": contact,
         "peak_contact_force": peak_contact,
         "rms_contact_force": np.sqrt(sum_contact_sq / (step + (step == 0))),  # over max(step, 1) steps

@@ -52,6 +52,12 @@ def add_mocap_box_body(spec: mujoco.MjSpec, name: str, boxes, rgba=(0.55, 0.45, 
 
 
 
+def sensor_values(worlds: list, adr: int) -> np.ndarray:
+    """The sensor value at address ``adr`` of each world's simulator (L,) (its sensors are current after a
+    step)."""
+    return np.array([e.data.sensordata[adr] for e in worlds], dtype=float)
+
+
 def smoothstep(x):
     """Minimum-jerk blend 0 -> 1 on x in [0, 1] (a number or an array, element-wise)."""
     x = np.minimum(np.maximum(x, 0.0), 1.0)
