@@ -515,27 +515,30 @@ def test_many_chunks_on_two_threads_give_the_one_thread_numbers():
     assert out[2][30]
 
 
-def test_a_task_error_after_the_first_chunks_stepped_needs_a_reset():
+def test_a_task_error_after_the_first_chunks_stepped_needs_a_reset(monkeypatch):
     """On threads the first chunk's physics starts before the other worlds' ``_begin``: should a task hook
     raise there, the batch refuses to step on from that half-stepped state until it is reset."""
     from gymnasium.error import ResetNeeded
 
+    from vswrist_gym.envs.drill import DrillEnv
+
     venv = make_batch("VSWrist/Drill-v0", n=16, threads=2)
     venv.reset(seed=0)
     world = venv.unwrapped.envs[12]  # in a later chunk
+    hook = DrillEnv._before_physics_worlds.__func__
 
-    class Broken:  # an episode value that Drill's load hook (over arrays of worlds) fails on
-        def __le__(self, other):
+    def broken(cls, worlds, ep, ids):  # Drill's load hook with a bug that shows in world 12's chunk only
+        if world in worlds:
             raise RuntimeError("a bug in a task hook")
+        hook(cls, worlds, ep, ids)
 
-        __ge__ = __le__
-
-    world._load = np.array([Broken()] + [0.0] * 8, dtype=object)  # the engage time
+    monkeypatch.setattr(DrillEnv, "_before_physics_worlds", classmethod(broken))
     acts = np.zeros(venv.action_space.shape)
     with pytest.raises(RuntimeError, match="a bug in a task hook"):
         venv.step(acts)
     with pytest.raises(ResetNeeded):
         venv.step(acts)
+    monkeypatch.undo()
     venv.reset(seed=0)  # draws the episode anew
     obs, rew, term, trunc, info = venv.step(acts)
     assert np.isfinite(obs).all() and np.isfinite(rew).all()

@@ -56,10 +56,6 @@ class BatchMeasures:
         """A field of the task's state (``TaskState``) of every world (N, ...)."""
         return getattr(self.task, name)[self.ids]
 
-    def each(self, name: str) -> np.ndarray:
-        """A task attribute of every world (N,) (the episode's draws that a task's term reads)."""
-        return np.array([getattr(e, name) for e in self.worlds])
-
     def posture_rate(self) -> np.ndarray:
         return self.bsim.read_posture_rate(self.G, self.posture)
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..sim import WristSim
 from .base import VSWristEnv
+from .episode import episode_history, task_field
 from .shared import FINGER_END
 
 
@@ -61,13 +62,22 @@ class DrillEnv(VSWristEnv):
     # stiffness command needs to cross its whole range at the rules' slew limit (probe.SLEW, 4 /s)
     cue_lead_s = 0.5
 
+    # the episode's draws: the posture held (``u``, RUD and FE, rad) and the PS turn (start ``ps0``, rad; speed
+    # ``ps_speed``, rad/s), the drill's engagement (``t_on`` to ``t_off``, s), its torque (``amp``, N m;
+    # ``freq``, Hz; ``phase``, rad; about ``axis``, a unit vector of the coupler frame) and ``thrust`` (N); and
+    # whether the drill is engaged in the period under way (``engaged``)
+    task_state = {"u": ((2,), float), "ps0": ((), float), "ps_speed": ((), float), "t_on": ((), float),
+                  "t_off": ((), float), "amp": ((), float), "freq": ((), float), "phase": ((), float),
+                  "axis": ((3,), float), "thrust": ((), float), "engaged": ((), bool)}
+    _u, _ps0, _ps_speed, _t_on, _t_off = map(task_field, ("u", "ps0", "ps_speed", "t_on", "t_off"))
+
     def _task_obs_terms(self):
         from .observations import ObsTerm, flag_column
         lead = self.cue_lead_s
 
         def engage_cue(m):
             t = m.time + 1e-12
-            return flag_column((m.each("_t_on") - lead <= t) & (t < m.each("_t_off")))
+            return flag_column((m.state("t_on") - lead <= t) & (t < m.state("t_off")))
 
         return [ObsTerm("engage_cue", 1, "-", f"1 from {lead:g} s before the drill engages until it releases (the "
                         "announced drill: Drill-v1 on), else 0", None, 0.0, 1.0, engage_cue)]
@@ -80,27 +90,23 @@ class DrillEnv(VSWristEnv):
         f = self.tp["target_fraction"]
         lo, hi = self.posture_map.lo, self.posture_map.hi
         mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        self._u = mid[:2] + f * half[:2] * rng.uniform(-1.0, 1.0, 2)
+        u = mid[:2] + f * half[:2] * rng.uniform(-1.0, 1.0, 2)
         T = self.cfg["episode_s"]
         speed = float(rng.uniform(*self.tp["ps_speed"])) * (1.0 if rng.random() < 0.5 else -1.0)
         sweep = abs(speed) * T
         room = max(0.0, (hi[2] - lo[2]) - sweep)
         start = lo[2] + rng.uniform(0.0, room) if room > 0 else lo[2]
-        self._ps0 = start if speed > 0 else hi[2] - (start - lo[2])
-        self._ps_speed = speed
-        self._t_on = float(rng.uniform(*self.tp["engage_s"]))
-        self._t_off = self._t_on + float(rng.uniform(*self.tp["engaged_for"]))
-        self._amp = float(rng.uniform(*self.tp["torque_amplitude"]))
-        self._freq = float(rng.uniform(*self.tp["torque_frequency"]))
-        self._phase = float(rng.uniform(0.0, 2 * np.pi))
-        self._axis_angle = float(rng.uniform(0.0, 2 * np.pi))
-        self._thrust = float(rng.uniform(*self.tp["axial_force"]))
-        self._engaged = False
-        # the episode's load in one row (``_before_physics_worlds`` stacks the worlds' rows in one call): engage
-        # and release times, torque amplitude, frequency and phase, thrust, the torque axis in the coupler frame
-        self._load = np.array([self._t_on, self._t_off, self._amp, self._freq, self._phase, self._thrust, 0.0,
-                               np.cos(self._axis_angle), np.sin(self._axis_angle)])
-        return self._u, self._ps0, float(rng.uniform(-1.0, 1.0))
+        ps0 = start if speed > 0 else hi[2] - (start - lo[2])
+        t_on = float(rng.uniform(*self.tp["engage_s"]))
+        t_off = t_on + float(rng.uniform(*self.tp["engaged_for"]))
+        amp = float(rng.uniform(*self.tp["torque_amplitude"]))
+        freq = float(rng.uniform(*self.tp["torque_frequency"]))
+        phase = float(rng.uniform(0.0, 2 * np.pi))
+        axis_angle = float(rng.uniform(0.0, 2 * np.pi))
+        thrust = float(rng.uniform(*self.tp["axial_force"]))
+        self._ep.task.put(0, u=u, ps0=ps0, ps_speed=speed, t_on=t_on, t_off=t_off, amp=amp, freq=freq, phase=phase,
+                          axis=(0.0, np.cos(axis_angle), np.sin(axis_angle)), thrust=thrust)
+        return u, ps0, float(rng.uniform(-1.0, 1.0))
 
     ramp_s = 1.0  # s, the PS speed ramps up smoothly (constant acceleration) over this time
 
@@ -117,44 +123,58 @@ class DrillEnv(VSWristEnv):
     @classmethod
     def _before_physics_worlds(cls, worlds: list, ep, ids) -> None:
         # the wrench is held over the period: sample it at the period's middle
+        ts = ep.task
         tc = ep.t[ids] + 0.5 * worlds[0].ctrl_dt
-        load = np.array([e._load for e in worlds])
-        on = (load[:, 0] <= tc) & (tc < load[:, 1])
-        flags = on.tolist()
-        for e, engaged in zip(worlds, flags):
-            e._engaged = engaged
-        if all(flags):  # every world engaged (the single env, while it drills): no selection
-            wrench = cls._drill_wrench(worlds, tc, load)
+        on = (ts.t_on[ids] <= tc) & (tc < ts.t_off[ids])
+        ts.put(ids, engaged=on)
+        load = (ts.amp[ids], ts.freq[ids], ts.phase[ids], ts.thrust[ids], ts.axis[ids])
+        if on.all():  # every world engaged (the single env, while it drills): no selection
+            wrench = drill_wrench(cls._coupler_frames(worlds), tc, *load)
         else:
             wrench = np.zeros((len(worlds), 6))
-            if any(flags):
-                idx = np.flatnonzero(on)
-                wrench[idx] = cls._drill_wrench([worlds[k] for k in idx.tolist()], tc[idx], load[idx])
+            if on.any():
+                k = np.flatnonzero(on)
+                wrench[k] = drill_wrench(cls._coupler_frames([worlds[j] for j in k.tolist()]), tc[k],
+                                         *(x[k] for x in load))
         WristSim.apply_wrenches([e.sim for e in worlds], wrench)
 
     @staticmethod
-    def _drill_wrench(ws: list, tc: np.ndarray, load: np.ndarray) -> np.ndarray:
-        """(thrust along -X_c, oscillating torque) (M, 6) on the engaged worlds ``ws`` at times ``tc`` (their
-        rows of ``_load``)."""
+    def _coupler_frames(ws: list) -> np.ndarray:
+        """The coupler frames (M, 3, 3) of the worlds ``ws``, as their simulators stand."""
         for e in ws:
             if e.sim._stale:  # poses are current after a step; not after a diverged one's reset
                 e.sim._forward()
-        R = np.array([e.sim._coupler_xmat for e in ws]).reshape(-1, 3, 3)
-        axis = np.matmul(R, load[:, 6:9, None])[:, :, 0]
-        amp, freq, phase, thrust = load[:, 2], load[:, 3], load[:, 4], load[:, 5]
-        torque = (amp * np.sin(2 * np.pi * freq * tc + phase))[:, None] * axis
-        return np.concatenate([-thrust[:, None] * R[:, :, 0], torque], axis=1)
+        return np.array([e.sim._coupler_xmat for e in ws]).reshape(-1, 3, 3)
 
-    def _contact_force(self) -> float:
+    @classmethod
+    def _contact_force_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
         """The thrust of the workpiece on the bit (N) while engaged."""
-        return self._thrust if getattr(self, "_engaged", False) else 0.0
+        ts = ep.task
+        return np.where(ts.engaged[ids], ts.thrust[ids], 0.0)
 
     def _tracking_error(self, err):
         return err[..., :2]  # PS is the tool turning; the disturbance acts on RUD/FE
 
-    def _success(self) -> bool:
-        t = (np.arange(len(self._history["error"])) + 1) * self.ctrl_dt
-        on = (t > self._t_on) & (t <= self._t_off)
-        err = np.array(self._history["error"])[:, :2]
-        rms = float(np.sqrt(np.mean(np.sum(err[on] ** 2, axis=1)))) if on.any() else 0.0
-        return rms < self.tp["success_error"] and float(np.mean(self._history["energy"])) < self.tp["success_energy"]
+    @classmethod
+    def _success_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        tp = worlds[0].tp
+        err, energy, _ = episode_history(ep, ids)
+        t = (np.arange(err.shape[1]) + 1) * worlds[0].ctrl_dt
+        rms = np.array([engaged_rms(e, t, t_on, t_off)
+                        for e, t_on, t_off in zip(err, ep.task.t_on[ids].tolist(), ep.task.t_off[ids].tolist())])
+        return (rms < tp["success_error"]) & (np.mean(energy, axis=1) < tp["success_energy"])
+
+
+def drill_wrench(R, tc, amp, freq, phase, thrust, axis) -> np.ndarray:
+    """The drill's wrench (M, 6) on worlds whose coupler frames are ``R`` (M, 3, 3), at times ``tc`` (s): the
+    thrust (N) along -X_c and the torque amp sin(2 pi freq tc + phase) (N m) about ``axis`` (M, 3, coupler
+    frame)."""
+    torque = (amp * np.sin(2 * np.pi * freq * tc + phase))[:, None] * np.matmul(R, axis[:, :, None])[:, :, 0]
+    return np.concatenate([-thrust[:, None] * R[:, :, 0], torque], axis=1)
+
+
+def engaged_rms(err, t, t_on: float, t_off: float) -> float:
+    """One world's RMS (RUD, FE) error (rad) over the steps at times ``t`` (s) while its drill was engaged (after
+    ``t_on``, up to ``t_off``), from its posture errors ``err`` (k, 3); 0 if none."""
+    on = (t > t_on) & (t <= t_off)
+    return float(np.sqrt(np.mean(np.sum(err[on, :2] ** 2, axis=1)))) if on.any() else 0.0

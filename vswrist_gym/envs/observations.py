@@ -72,10 +72,9 @@ def observe(terms: list, measures, low: np.ndarray, high: np.ndarray) -> np.ndar
     """The observation of the worlds ``measures`` describes (float32 (..., size)): every term in order, clipped
     to the bounds (NaN passes through). ``measures`` holds the step's arrays (``posture``, ``deflections``,
     ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``time``, ``noise``), the worlds' fields
-    of the task's state ``state(name)`` (``episode.TaskState``), each world's task attribute ``each(name)``, the
-    simulator's reads that only some terms need (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``,
-    ``jacobian()``: J_a (..., 3 legs, 2)) and ``task_term(term)``, a task's own per-world term (``ObsTerm.fn``)
-    over its worlds."""
+    of the task's state ``state(name)`` (``episode.TaskState``), the simulator's reads that only some terms need
+    (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``, ``jacobian()``: J_a (..., 3 legs, 2)) and
+    ``task_term(term)``, a task's own per-world term (``ObsTerm.fn``) over its worlds."""
     raw = np.concatenate([t.of(measures) if t.of is not None else measures.task_term(t) for t in terms], axis=-1)
     return np.minimum(np.maximum(raw, low), high).astype(np.float32)
 
@@ -95,9 +94,6 @@ class WorldMeasures:
 
     def state(self, name: str):
         return getattr(self.env._ep.task, name)[0]
-
-    def each(self, name: str):
-        return getattr(self.env, name)
 
     def posture_rate(self) -> np.ndarray:
         return self.env.sim.posture_rate()
