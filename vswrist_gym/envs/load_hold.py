@@ -120,9 +120,9 @@ class LoadHoldEnv(VSWristEnv):
 
     @classmethod
     def _before_physics_worlds(cls, worlds: list, ep, ids) -> None:
-        on, wrench = load_wrenches(ep.t[ids], ep.task.onset[ids], ep.task.load_force[ids])
+        on = load_on(ep.t[ids], ep.task.onset[ids])
         if on.size:
-            WristSim.apply_wrenches([worlds[k].sim for k in on.tolist()], wrench)
+            WristSim.apply_wrenches([worlds[k].sim for k in on.tolist()], load_wrench(ep.task.load_force[ids][on]))
 
     def load_info(self) -> dict:
         """The episode's hidden load (for analysis, not for the agent): mass kg, onset s, force N."""
@@ -136,12 +136,15 @@ class LoadHoldEnv(VSWristEnv):
                             tp["success_energy"])
 
 
-def load_wrenches(t, onset, force) -> tuple[np.ndarray, np.ndarray]:
-    """The worlds whose load acts in the control period that starts at their time ``t`` (indices: from the first
-    period that starts at or after their ``onset``) and its wrench on each of them (M, 6), from their load forces
-    ``force`` (N, 3)."""
-    on = np.flatnonzero(t + 1e-12 >= onset)
-    return on, np.concatenate([force[on], np.zeros((on.size, 3))], axis=1)
+def load_on(t, onset) -> np.ndarray:
+    """The worlds (indices) whose load acts in the control period that starts at their time ``t``: from the first
+    period that starts at or after their ``onset``."""
+    return np.flatnonzero(t + 1e-12 >= onset)
+
+
+def load_wrench(force) -> np.ndarray:
+    """The wrenches (M, 6) of load forces ``force`` (M, 3) at the hand centre (no torque)."""
+    return np.concatenate([force, np.zeros_like(force)], axis=1)
 
 
 def hold_success(err, energy, window: int, max_error: float, max_energy: float) -> np.ndarray:
