@@ -487,7 +487,7 @@ def test_bench_command_batched_section_runs(tmp_path):
     one = b["tasks"][0]["one_thread"]
     assert one["n"] == 2 and one["overhead_ratio"] >= 1.0  # the batch's step includes its worlds' physics
     assert b["single"][0]["single"] > 0 and b["single"][0]["batch1"] > 0
-    assert {t["goal"] for t in b["targets"]} >= {"<= 1.10", ">= 1.8x"}
+    assert {t["goal"] for t in b["targets"]} >= {"<= 1.10", ">= 0.90"}
 
 
 def test_adapting_stiffness_pays_on_polish():

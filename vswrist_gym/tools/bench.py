@@ -486,21 +486,25 @@ def _batched(args, results: dict, cpu) -> None:
               f"{'-' if floor is None else f'{floor:.3f}':>7}{many['steps_per_s']:>11.0f}"
               f"{speed:>8.2f}{'-' if ceiling is None else f'{ceiling:.2f}':>8}{single['single']:>10.0f}"
               f"{single['batch1']:>10.0f}")
-        rows.append((name, one, speed, single))
+        rows.append((name, one, speed, single, floor, ceiling))
     mem = bench_memory("Insertion", args.memory) if args.memory else None
     if mem is not None:
         results["batch"]["memory"] = mem
     ant = results.get("ant") or {}
     print("\ntargets")
-    print(f"{'target':<52}{'measured':>12}{'goal':>10}{'met':>5}")
+    print(f"{'target':<64}{'measured':>10}{'goal':>10}{'met':>5}")
     table = []
-    if rows:
-        worst_ratio = max(r[1]["overhead_ratio"] for r in rows)
-        worst_speed = min(r[2] for r in rows)
-        table = [(f"batch N={n}, 1 thread: env step / physics (worst task)", f"{worst_ratio:.2f}", "<= 1.10",
-                  worst_ratio <= 1.10),
-                 (f"batch N={n}: {args.threads} threads / 1 thread env steps/s (worst)", f"{worst_speed:.2f}x",
-                  ">= 1.8x", worst_speed >= 1.8)]
+    measured = [r for r in rows if r[4] is not None and r[5] is not None]  # Throw steps world by world: none
+    if measured:
+        # against the floor and the ceiling measured beside each task in this run: what Python adds to the
+        # compiled physics, and what share of the physics' own thread scaling the batch keeps
+        over_floor = {r[0]: r[1]["overhead_ratio"] / r[4] for r in measured}
+        of_ceiling = {r[0]: r[2] / r[5] for r in measured}
+        worst_floor, worst_share = max(over_floor, key=over_floor.get), min(of_ceiling, key=of_ceiling.get)
+        table = [(f"batch N={n}, 1 thread: env step / floor (worst: {worst_floor})",
+                  f"{over_floor[worst_floor]:.2f}", "<= 1.10", over_floor[worst_floor] <= 1.10),
+                 (f"batch N={n}: {args.threads}-thread speed-up / ceiling (worst: {worst_share})",
+                  f"{of_ceiling[worst_share]:.2f}", ">= 0.90", of_ceiling[worst_share] >= 0.9)]
     if "overhead_ratio" in ant:
         table.insert(1, ("Ant-v5 single env: env step / physics (reference)", f"{ant['overhead_ratio']:.2f}", "-",
                          None))
@@ -510,7 +514,7 @@ def _batched(args, results: dict, cpu) -> None:
     elif mem is not None:
         table.append((f"memory of {mem['n']} Insertion worlds", "error", "< 2048", False))
     for label, value, goal, ok in table:
-        print(f"{label:<52}{value:>12}{goal:>10}{'-' if ok is None else ('yes' if ok else 'NO'):>5}")
+        print(f"{label:<64}{value:>10}{goal:>10}{'-' if ok is None else ('yes' if ok else 'NO'):>5}")
     print("single env step / pre-batch single env step: measured with the pre-batch step kept in this tool up to "
           "commit 8cc08a1 (README, Batched speed)")
     print("training speed: python experiments/training_speed/training_speed.py (a separate command: it trains)")
