@@ -112,7 +112,8 @@ class VSWristEnv(TaskHooks, ResetMixin, RenderMixin, PicklingMixin, EpisodeState
       ``_success_worlds(worlds, ep, ids) -> (L,) bool`` (at the episode's last step, from its history:
       ``episode.episode_history``), optionally ``_task_obs_terms()`` (``ObsTerm``s: over arrays of worlds,
       ``of(measures)``, as LoadHold's and Drill's cues, which read the task state with ``measures.state(name)``,
-      or one world's ``fn()``, which a batch calls world by world) and ``_validate_task()``.
+      and Polish's target force, a table's entry at the step with ``measures.state_at_step(name)``; or one world's
+      ``fn()``, which a batch calls world by world) and ``_validate_task()``.
 
     Everything else (actions, observations, noise, randomisation, rewards, info, divergence, rendering,
     pickling, batching) comes from the base and its mixins and needs no task code.

@@ -56,6 +56,11 @@ class BatchMeasures:
         """A field of the task's state (``TaskState``) of every world (N, ...)."""
         return getattr(self.task, name)[self.ids]
 
+    def state_at_step(self, name: str) -> np.ndarray:
+        """A field of the task's state that is a table over the episode's control instants (N, steps + 1, ...), each
+        world's entry at its step."""
+        return getattr(self.task, name)[self.ids, self.step]
+
     def posture_rate(self) -> np.ndarray:
         return self.bsim.read_posture_rate(self.G, self.posture)
 

@@ -200,6 +200,12 @@ def record_history(ep: EpisodeState, ids, steps, err) -> None:
     ep.history_contact[ids, j] = ep.contact[ids]
 
 
+def at_step(ep: EpisodeState, ids, table) -> np.ndarray:
+    """The worlds ``ids``' entries (L, ...) of ``table`` (N, steps + 1, ...: a value at each control instant of the
+    episode, as ``references``) at their steps."""
+    return table[np.arange(len(table))[ids], ep.step[ids]]
+
+
 def episode_history(ep: EpisodeState, ids) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The episode so far of the worlds ``ids``, which have taken the same number of steps k (the success criteria
     read it at the episode's last step): their posture errors (L, k, 3), stored energies (L, k) and contact forces

@@ -41,14 +41,14 @@ def _noisy(x, noise, a: int, b: int):
     return x if noise is None else x + noise[..., a:b]
 
 
-def _column(x) -> np.ndarray:
+def column(x) -> np.ndarray:
     """Values of one number per world as the term's single column (..., 1)."""
     return np.asarray(x, dtype=float)[..., None]
 
 
 def flag_column(flag) -> np.ndarray:
     """A condition per world (a bool or a bool array) as the term's column of 1.0 or 0.0 (..., 1)."""
-    return _column(flag * 1.0)
+    return column(flag * 1.0)
 
 
 def _touch(force, noise) -> np.ndarray:
@@ -72,7 +72,8 @@ def observe(terms: list, measures, low: np.ndarray, high: np.ndarray) -> np.ndar
     """The observation of the worlds ``measures`` describes (float32 (..., size)): every term in order, clipped
     to the bounds (NaN passes through). ``measures`` holds the step's arrays (``posture``, ``deflections``,
     ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``time``, ``noise``), the worlds' fields
-    of the task's state ``state(name)`` (``episode.TaskState``), the simulator's reads that only some terms need
+    of the task's state ``state(name)`` (``episode.TaskState``) and, for a field that is a table over the episode's
+    control instants, its entry at the step ``state_at_step(name)``, the simulator's reads that only some terms need
     (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``, ``jacobian()``: J_a (..., 3 legs, 2)) and
     ``task_term(term)``, a task's own per-world term (``ObsTerm.fn``) over its worlds."""
     raw = np.concatenate([t.of(measures) if t.of is not None else measures.task_term(t) for t in terms], axis=-1)
@@ -94,6 +95,9 @@ class WorldMeasures:
 
     def state(self, name: str):
         return getattr(self.env._ep.task, name)[0]
+
+    def state_at_step(self, name: str):
+        return getattr(self.env._ep.task, name)[0, self.step]
 
     def posture_rate(self) -> np.ndarray:
         return self.env.sim.posture_rate()
@@ -147,7 +151,7 @@ class ObservationsMixin:
                     "paper's formula, no load term)", None, -sig_bound, sig_bound,
                     lambda m: coupler_stiffness(m.jacobian(), spring_stiffness(m.deflections, m.law))),
             ObsTerm("lam", 1, "N m", "internal torque used (stiffness preload)", None, -lam_bound, lam_bound,
-                    lambda m: _column(m.lam)),
+                    lambda m: column(m.lam)),
             ObsTerm("prev_action", n_act, "-", "previous action", None, -1.0, 1.0, lambda m: m.prev_action),
             ObsTerm("target", 3, "rad", "posture reference (RUD, FE, PS) now", None, pl, ph, lambda m: m.target),
             ObsTerm("tool_wrench", 6, "N, N m", "hand-tool force/torque sensor, base frame (with noise)", None,
@@ -157,7 +161,7 @@ class ObservationsMixin:
                     "hole's walls and chamfers, not the fit plate) (with noise)", None, 0.0, 1e5,
                     lambda m: _touch(m.contact, m.noise)),
             ObsTerm("phase", 1, "-", "elapsed fraction of the episode", None, 0.0, 1.0,
-                    lambda m: _column(m.step / steps)),
+                    lambda m: column(m.step / steps)),
         ]
         out = {t.name: t for t in terms}
         for t in self._task_obs_terms():

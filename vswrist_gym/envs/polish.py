@@ -22,12 +22,11 @@ two differ in nothing else.
 
 from __future__ import annotations
 
-import bisect
-
 import mujoco
 import numpy as np
 
 from .base import VSWristEnv
+from .episode import at_step, episode_history, task_field
 from .shared import FINGER_END, PeriodMeanForce, add_mocap_box_body, quat_from_matrix, rot_x, smoothstep
 
 SURFACE_HALF = (0.06, 0.16, 0.01)  # m, half sizes of the surface slab
@@ -59,9 +58,21 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
         "contact_force": ("choice", tuple(CONTACT_FORCE_IDS), None),
     }
     task_reward_terms = ("force_band",)
-    _pass_start = np.zeros(1)
-    _forces = np.zeros(1)
     approach_s = 0.3
+    start_above = 0.15  # rad: the episode starts this much RUD short of the contact posture, above the surface
+
+    @property
+    def task_state(self) -> dict:
+        """The episode's draws: the contact posture (``rud_c``, rad), the sweep (``amp``, rad; ``period``, s;
+        ``sweep_phase``, rad), ``ps`` (rad), the surface's offsets from nominal (``dz``, m; ``tilt``, rad about X_b),
+        and the passes' target forces as a table over the episode's control instants (``force_target``, N: the
+        target of the pass under way at k ctrl_dt, computed at reset as the posture references are)."""
+        return {"rud_c": ((), float), "amp": ((), float), "period": ((), float), "sweep_phase": ((), float),
+                "ps": ((), float), "dz": ((), float), "tilt": ((), float),
+                "force_target": ((self.episode_steps + 1,), float)}
+
+    _rud_c, _amp, _period, _sweep_phase, _ps, _dz, _tilt = map(
+        task_field, ("rud_c", "amp", "period", "sweep_phase", "ps", "dz", "tilt"))
 
     def _validate_task(self) -> None:
         rom = load_rom(self)
@@ -98,22 +109,24 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
         return mean
 
     def _task_reset(self, rng):
-        self._rud_c = float(rng.uniform(*self.tp["contact_rud"]))
-        self._amp = float(rng.uniform(*self.tp["sweep_amplitude"]))
-        self._period = float(rng.uniform(*self.tp["sweep_period"]))
-        self._sweep_phase = float(rng.uniform(0, 2 * np.pi))
-        self._ps = float(rng.uniform(*self.tp["ps_range"]))
-        self._dz = float(rng.uniform(-1, 1)) * self.tp["height_error"]
-        self._tilt = float(rng.uniform(-1, 1)) * self.tp["tilt"]
+        tp = self.tp
+        rud_c = float(rng.uniform(*tp["contact_rud"]))
+        amp = float(rng.uniform(*tp["sweep_amplitude"]))
+        period = float(rng.uniform(*tp["sweep_period"]))
+        sweep_phase = float(rng.uniform(0, 2 * np.pi))
+        ps = float(rng.uniform(*tp["ps_range"]))
+        dz = float(rng.uniform(-1, 1)) * tp["height_error"]
+        tilt = float(rng.uniform(-1, 1)) * tp["tilt"]
         rom = load_rom(self)
-        self._amp = min(self._amp, rom.fe_max - 0.05, -rom.fe_min - 0.05)
-        self._u_start = np.array([self._rud_c - 0.15, self._fe(0.0)])
-        self._in_band: list[bool] = []
-        n = int(rng.integers(self.tp["passes"][0], self.tp["passes"][1] + 1))
+        amp = min(amp, rom.fe_max - 0.05, -rom.fe_min - 0.05)
+        n = int(rng.integers(tp["passes"][0], tp["passes"][1] + 1))
         T = self.cfg["episode_s"]
-        self._pass_start = np.concatenate([[0.0], np.sort(rng.uniform(0.25 * T, 0.8 * T, n - 1))])
-        self._forces = rng.uniform(*self.tp["force_target"], n)
-        return self._u_start, self._ps, float(rng.uniform(-1.0, 1.0))
+        pass_start = np.concatenate([[0.0], np.sort(rng.uniform(0.25 * T, 0.8 * T, n - 1))])
+        forces = rng.uniform(*tp["force_target"], n)
+        targets = pass_targets(pass_start, forces, np.arange(self.episode_steps + 1) * self.ctrl_dt)
+        self._ep.task.put(0, rud_c=rud_c, amp=amp, period=period, sweep_phase=sweep_phase, ps=ps, dz=dz, tilt=tilt,
+                          force_target=targets)
+        return np.array([rud_c - self.start_above, self._fe(0.0)]), ps, float(rng.uniform(-1.0, 1.0))
 
     def _fe(self, t: float) -> float:
         return self._amp * np.sin(2 * np.pi * t / self._period + self._sweep_phase)
@@ -122,45 +135,60 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
         # nominal contact point: the lowest point of the tool tip at RUD = contact_rud, FE = 0
         tip = self.tool_point(np.array([self._rud_c, 0.0]), self._ps, np.array([self._tip_x, 0.0, 0.0]))
         p0 = tip - np.array([0.0, 0.0, self.tp["tool_radius"]]) + np.array([0.0, 0.0, self._dz])
-        R = rot_x(self._tilt)
         self.data.mocap_pos[self._mocap] = p0
-        self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
-        self._surface = (p0, R[:, 2])
+        self.data.mocap_quat[self._mocap] = quat_from_matrix(rot_x(self._tilt))
 
     def _reference(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         rud_goal = self._rud_c + self.tp["press"]
-        rud = self._u_start[0] + smoothstep(t / self.approach_s) * (rud_goal - self._u_start[0])
+        rud0 = self._rud_c - self.start_above
+        rud = rud0 + smoothstep(t / self.approach_s) * (rud_goal - rud0)
         return np.stack([rud, self._fe(t), np.full_like(t, self._ps)], axis=-1)
 
     def _task_obs_terms(self):
-        from .observations import ObsTerm
-        return [ObsTerm("force_target", 1, "N", "target normal force of the current pass", self.force_target,
-                        0.0, 1e4)]
+        from .observations import ObsTerm, column
+        return [ObsTerm("force_target", 1, "N", "target normal force of the current pass", None, 0.0, 1e4,
+                        lambda m: column(m.state_at_step("force_target")))]
 
     def force_target(self) -> float:
         """Target normal force (N) of the pass under way."""
-        k = bisect.bisect_right(self._pass_start, self._t) - 1  # = np.searchsorted(..., side="right") - 1
-        return float(self._forces[max(k, 0)])
+        return self._ep.task.force_target.item(0, self._step)
 
     def force_band(self) -> tuple[float, float]:
-        f, tol = self.force_target(), self.tp["force_tolerance"]
-        return max(f - tol, 0.0), f + tol
+        """The band (lo, hi) (N) the normal force must stay in now."""
+        lo, hi = target_band(self.force_target(), self.tp["force_tolerance"])
+        return float(lo), float(hi)
 
-    def _task_reward_terms(self, err) -> dict:
-        lo, hi = self.force_band()
-        f = self._contact
-        self._in_band.append(lo <= f <= hi)
-        out = max(lo - f, 0.0, f - hi)
-        return {"force_band": -out / self.cfg["scales"]["force"]}
+    @classmethod
+    def _task_reward_terms_worlds(cls, worlds: list, ep, ids, err) -> dict:
+        lo, hi = target_band(at_step(ep, ids, ep.task.force_target), worlds[0].tp["force_tolerance"])
+        f = ep.contact[ids]
+        return {"force_band": -np.maximum(np.maximum(lo - f, 0.0), f - hi) / worlds[0].cfg["scales"]["force"]}
 
     def _tracking_error(self, err):
         return err[..., 1:]  # RUD is pressed into the surface on purpose: track FE and PS
 
-    def _success(self) -> bool:
-        k = self._window(self.tp["settle_s"])
-        band = self._in_band[k:]
-        return bool(band) and float(np.mean(band)) >= self.tp["success_fraction"]
+    @classmethod
+    def _success_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        tp = worlds[0].tp
+        _, _, f = episode_history(ep, ids)
+        # history row j is step j + 1, whose target is the table's entry j + 1
+        lo, hi = target_band(ep.task.force_target[ids, 1:f.shape[1] + 1], tp["force_tolerance"])
+        band = ((lo <= f) & (f <= hi))[:, worlds[0]._window(tp["settle_s"]):]
+        if band.shape[1] == 0:
+            return np.zeros(len(band), dtype=bool)
+        return np.mean(band, axis=1) >= tp["success_fraction"]
+
+
+def pass_targets(pass_start, forces, t) -> np.ndarray:
+    """The target force (N) at times ``t`` (s) of one episode whose passes start at ``pass_start`` (sorted, the first
+    at 0) with target forces ``forces``: the last pass that started at or before t."""
+    return forces[np.searchsorted(pass_start, t, side="right") - 1]
+
+
+def target_band(target, tolerance: float):
+    """The band (lo, hi) (N) the normal force must stay in around ``target`` (N), never below 0."""
+    return np.maximum(target - tolerance, 0.0), target + tolerance
 
 
 def load_rom(env):
