@@ -538,7 +538,7 @@ def test_insertion_fit_holds_below_its_force_and_yields_above(ratio, moves):
     u = env.unwrapped
     env.reset(seed=3)
     plate = u.model.body("task_hole_fit").id
-    axis = u._hole[1][:, 2]
+    axis = u._hole_R[:, 2]
     u.data.xfrc_applied[plate, :3] = -ratio * u._fit * axis
     u.sim.step(0.1)
     travel = u.fit_travel()

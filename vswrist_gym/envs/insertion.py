@@ -38,8 +38,10 @@ import numpy as np
 
 from .base import VSWristEnv
 from .config import EnvConfigError
+from .episode import ONE, episode_history, task_field
 from .rewards import FORCE_CAP
-from .shared import CONTACT_SOLREF, FINGER_END, add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y
+from .shared import (CONTACT_SOLREF, FINGER_END, add_mocap_box_body, frame_from_z, quat_from_matrix, rot_x, rot_y,
+                     sensor_values)
 
 WALL = 0.008      # m, half thickness of the walls around the hole
 PLATE = 0.02      # m, half extent of the walls beyond the hole
@@ -76,6 +78,13 @@ class InsertionEnv(VSWristEnv):
         "fit_depth": ("number", 0.0, 1.0),
     }
     task_reward_terms = ("depth", "jamming")
+    PS = 0.0  # rad, the PS reference: the RUD path of the pin tip lies in the plane of the pin only at PS = 0
+    # the episode's draws: the hole's nominal FE (``fe``, rad), its true pose's offsets from nominal (``lat``, m
+    # along Y_b; ``ang``, rad about X_b) and the fit's force (``fit``, N); the hole as placed (``entrance``, m, and
+    # its axes ``hole_R``, Z out of the hole)
+    task_state = {"fe": ((), float), "lat": ((), float), "ang": ((), float), "fit": ((), float),
+                  "entrance": ((3,), float), "hole_R": ((3, 3), float)}
+    _fe, _lat, _ang, _fit, _entrance, _hole_R = map(task_field, task_state)
 
     def _validate_task(self) -> None:
         if self.tp["entry_rud"] <= self.tp["start_rud"]:
@@ -110,6 +119,7 @@ class InsertionEnv(VSWristEnv):
         from ..kinematics import WristKinematics
         self._kin = WristKinematics(self.nominal_params)
         self._pin_a, self._pin_v = self._pin_geometry()
+        self._rud_deep = self._rud_at_depth(1.0, self._pin_a, self._pin_v)  # RUD of the pin tip at the hole bottom
         tip = self._pin_a + self.tp["pin_length"] * self._pin_v
         r = self.tp["pin_radius"]
         self._add_tool_geom(spec, "arm", [0.02, 0, 0, *self._pin_a], 0.006, 0.05, self.tp["friction"])
@@ -162,27 +172,25 @@ class InsertionEnv(VSWristEnv):
 
     # ------------------------------------------------------------------ episode
     def _task_reset(self, rng):
-        self._fe = float(rng.uniform(*self.tp["hole_fe"]))
-        self._ps = 0.0  # the RUD path of the pin tip lies in the plane of the pin only at PS = 0
-        self._lat = float(rng.uniform(-1, 1)) * self.tp["lateral_error"]
-        self._ang = float(rng.uniform(-1, 1)) * self.tp["angular_error"]
-        self._rud_end = self._rud_at_depth(1.0, self._pin_a, self._pin_v) + self.tp["overdrive"]
-        self._depth = 0.0
-        self._fit = float(rng.uniform(*self.tp["fit_force"]))
-        self.model.dof_frictionloss[self._fit_dof] = self._fit  # before the settling steps of reset
-        return np.array([self.tp["start_rud"], self._fe]), self._ps, float(rng.uniform(-1.0, 1.0))
+        fe = float(rng.uniform(*self.tp["hole_fe"]))
+        lat = float(rng.uniform(-1, 1)) * self.tp["lateral_error"]
+        ang = float(rng.uniform(-1, 1)) * self.tp["angular_error"]
+        fit = float(rng.uniform(*self.tp["fit_force"]))
+        self._ep.task.put(0, fe=fe, lat=lat, ang=ang, fit=fit)
+        self.model.dof_frictionloss[self._fit_dof] = fit  # before the settling steps of reset
+        return np.array([self.tp["start_rud"], fe]), self.PS, float(rng.uniform(-1.0, 1.0))
 
     def _after_reset(self) -> None:
         u_entry = np.array([self.tp["entry_rud"], self._fe])
-        u_deep = np.array([self._rud_at_depth(1.0, self._pin_a, self._pin_v), self._fe])
-        entrance = self.tool_point(u_entry, self._ps, self._tip_local)
-        bottom = self.tool_point(u_deep, self._ps, self._tip_local)
+        u_deep = np.array([self._rud_deep, self._fe])
+        entrance = self.tool_point(u_entry, self.PS, self._tip_local)
+        bottom = self.tool_point(u_deep, self.PS, self._tip_local)
         axis_in = (bottom - entrance) / np.linalg.norm(bottom - entrance)
         R = frame_from_z(-axis_in)
         # misalignment: shift along Y_b, tilt about X_b through the entrance
         R = rot_x(self._ang) @ R
         entrance = entrance + np.array([0.0, self._lat, 0.0])
-        self._hole = (entrance, R)
+        self._ep.task.put(0, entrance=entrance, hole_R=R)
         for m in self._mocaps:
             self.data.mocap_pos[m] = entrance
             self.data.mocap_quat[m] = quat_from_matrix(R)
@@ -190,12 +198,14 @@ class InsertionEnv(VSWristEnv):
     def _reference(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         s = np.minimum(t / self.tp["approach_s"], 1.0)
-        rud = self.tp["start_rud"] + s * (self._rud_end - self.tp["start_rud"])
-        return np.stack([rud, np.full_like(t, self._fe), np.full_like(t, self._ps)], axis=-1)
+        rud_end = self._rud_deep + self.tp["overdrive"]
+        rud = self.tp["start_rud"] + s * (rud_end - self.tp["start_rud"])
+        return np.stack([rud, np.full_like(t, self._fe), np.full_like(t, self.PS)], axis=-1)
 
-    def _contact_force(self) -> float:
+    @classmethod
+    def _contact_force_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
         """Normal force (N) of the walls and chamfers on the tool: the jamming force (the fit plate is apart)."""
-        return float(self.data.sensordata[self._touch_adr])
+        return sensor_values(worlds, worlds[0]._touch_adr)
 
     def bottom_force(self) -> float:
         """Normal force (N) of the fit plate (which ends at the hole bottom) on the pin."""
@@ -214,38 +224,65 @@ class InsertionEnv(VSWristEnv):
     def pin_depth(self) -> float:
         """Depth (m) of the pin's end (its rounded tip) below the hole entrance along the hole axis, 0 unless the
         pin is inside the hole; ``hole_depth`` when it rests on the bottom."""
-        depth, inside = self._tip_in_hole()
-        return float(min(max(depth, 0.0), self.tp["hole_depth"])) if inside else 0.0
+        return clipped_depth(*self._tip_in_hole_worlds([self], self._ep, ONE), self.tp["hole_depth"]).item(0)
 
-    def _tip_in_hole(self) -> tuple[float, bool]:
-        """Depth (m, not clipped: past the bottom or above the entrance as it is) of the pin's end below the hole
-        entrance along the hole axis, and whether the pin is laterally within the hole (clearance + 1 mm)."""
-        entrance, R = self._hole
-        tip = self._tool_tip_world()  # centre of the rounded end, pin_radius short of the end
-        rel = R.T @ (tip - entrance)
-        r = self.tp["pin_radius"]
-        w = r + self.tp["clearance"]
-        return r - rel[2], bool(abs(rel[0]) <= w + 1e-3 and abs(rel[1]) <= w + 1e-3)
+    def seated(self) -> bool:
+        """Whether the pin is in the hole now, its end between ``success_depth`` of the depth and the bottom."""
+        return bool(is_seated(*self._tip_in_hole_worlds([self], self._ep, ONE), self.tp)[0])
 
-    def _tool_tip_world(self) -> np.ndarray:
-        b = self.sim.tool_id
-        return self.data.xpos[b] + self.data.xmat[b].reshape(3, 3) @ self._tip_local
+    @classmethod
+    def _tip_in_hole_worlds(cls, worlds: list, ep, ids) -> tuple[np.ndarray, np.ndarray]:
+        """``tip_in_hole`` of ``worlds`` as their simulators stand."""
+        tp = worlds[0].tp
+        r = tp["pin_radius"]
+        tips = tool_points(worlds, worlds[0]._tip_local)  # centres of the rounded ends, pin_radius short of them
+        return tip_in_hole(tips, ep.task.entrance[ids], ep.task.hole_R[ids], r, r + tp["clearance"])
 
-    def _task_reward_terms(self, err) -> dict:
-        self._depth = self.pin_depth()
-        return {"depth": self._depth / self.tp["hole_depth"],
-                "jamming": -min(self._contact / self.cfg["scales"]["force"], FORCE_CAP)}
+    @classmethod
+    def _task_reward_terms_worlds(cls, worlds: list, ep, ids, err) -> dict:
+        tp = worlds[0].tp
+        depth = clipped_depth(*cls._tip_in_hole_worlds(worlds, ep, ids), tp["hole_depth"])
+        return {"depth": depth / tp["hole_depth"],
+                "jamming": -np.minimum(ep.contact[ids] / worlds[0].cfg["scales"]["force"], FORCE_CAP)}
 
     def _tracking_error(self, err):
         return err[..., 1:]  # the RUD reference is driven past the hole bottom on purpose
 
-    def seated(self) -> bool:
-        """Whether the pin is in the hole now, its end between ``success_depth`` of the depth and the bottom."""
-        depth, inside = self._tip_in_hole()
-        D = self.tp["hole_depth"]
-        return inside and self.tp["success_depth"] * D <= depth <= D + SEAT_SLACK
+    @classmethod
+    def _success_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        # peak_contact is the largest wall force of the episode (contact_force is the walls' and chamfers')
+        tp = worlds[0].tp
+        _, energy, _ = episode_history(ep, ids)
+        return (is_seated(*cls._tip_in_hole_worlds(worlds, ep, ids), tp)
+                & (ep.peak_contact[ids] <= tp["success_wall_force"]) & (np.mean(energy, axis=1) < tp["success_energy"]))
 
-    def _success(self) -> bool:
-        # _peak_contact is the largest wall force of the episode (contact_force is the walls' and chamfers')
-        return (self.seated() and self._peak_contact <= self.tp["success_wall_force"]
-                and float(np.mean(self._history["energy"])) < self.tp["success_energy"])
+
+def tool_points(worlds: list, p_tool) -> np.ndarray:
+    """World positions (L, 3) of the point ``p_tool`` (3,) of the tool frame of each world's simulator as it
+    stands (its poses are current after a step)."""
+    b = worlds[0].sim.tool_id
+    X = np.array([e.data.xpos[b] for e in worlds])
+    R = np.array([e.data.xmat[b] for e in worlds]).reshape(-1, 3, 3)
+    return X + np.matmul(R, p_tool)
+
+
+def tip_in_hole(tips, entrance, R, r: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+    """Depth (m, not clipped: past the bottom or above the entrance as it is) of the pin's ends below the hole
+    entrances along the hole axes, and whether each pin is laterally within its hole (half width ``w`` + 1 mm),
+    from the centres ``tips`` (L, 3) of the pins' rounded ends (radius ``r``) and the holes' ``entrance`` (L, 3)
+    and axes ``R`` (L, 3, 3), Z out of the hole."""
+    rel = np.matmul((tips - entrance)[:, None, :], R)  # (L, 1, 3): R^T (tip - entrance) of each world
+    lateral = np.abs(rel)
+    return r - rel[:, 0, 2], np.maximum(lateral[:, 0, 0], lateral[:, 0, 1]) <= w + 1e-3
+
+
+def clipped_depth(depth, inside, hole_depth: float) -> np.ndarray:
+    """The pins' depth (m) from ``tip_in_hole``: within [0, ``hole_depth``] inside the hole, 0 outside."""
+    return np.where(inside, np.minimum(np.maximum(depth, 0.0), hole_depth), 0.0)
+
+
+def is_seated(depth, inside, tp) -> np.ndarray:
+    """Whether each pin is seated, from ``tip_in_hole``: in its hole, its end between ``success_depth`` of the
+    hole depth and the bottom (``SEAT_SLACK`` past it at most)."""
+    D = tp["hole_depth"]
+    return inside & (tp["success_depth"] * D <= depth) & (depth <= D + SEAT_SLACK)

@@ -147,7 +147,7 @@ def oracle_policy(env):
         elif task == "insertion":
             # stiff from just before the pin reaches the fit (2 mm) until it has pushed the fit plate three quarters
             # of its way down (past the success depth), soft otherwise
-            near = u._depth >= u.tp["fit_depth"] * u.tp["hole_depth"] - 0.002
+            near = u.pin_depth() >= u.tp["fit_depth"] * u.tp["hole_depth"] - 0.002
             s = 1.0 if near and u.fit_travel() < 0.75 else -1.0
         elif task == "impact":
             # knows where the wall stands: soft from shortly before it until the reference is back behind it,
