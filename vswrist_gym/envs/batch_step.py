@@ -30,6 +30,7 @@ from .ending import episode_end, restart_failed, step_failures
 from .episode import record_contact, record_history, tick
 from .observations import observe
 from .rewards import step_metrics, wrap_angle
+from .shared import sensor_values
 
 # the single env's step methods that the array step computes over arrays (a batch of a task overriding one is
 # refused: the batch would not run the override); the hooks it calls per world, or over arrays
@@ -75,6 +76,9 @@ class BatchMeasures:
         P = self.posture
         _, (J0, J1), _, _ = self.worlds[0].ctrl.posture_kinematics_batch(P[:, 0], P[:, 1], with_q1=False)
         return np.stack([J0.T, J1.T], axis=-1)
+
+    def sensor(self, adr: int) -> np.ndarray:
+        return sensor_values(self.worlds, adr)
 
     def task_term(self, term) -> np.ndarray:
         """A task's own term, world by world (it reads each world's state)."""

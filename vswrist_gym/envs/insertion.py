@@ -217,9 +217,10 @@ class InsertionEnv(VSWristEnv):
         return float(self.data.qpos[self._fit_qadr] / lo)
 
     def _task_obs_terms(self):
-        from .observations import ObsTerm
+        from .observations import ObsTerm, column
+        adr = self._bottom_adr
         return [ObsTerm("bottom_force", 1, "N", "normal force of the fit plate (at the hole bottom once pushed down) "
-                        "on the pin (no sensor noise)", self.bottom_force, 0.0, 1e5)]
+                        "on the pin (no sensor noise)", None, 0.0, 1e5, lambda m: column(m.sensor(adr)))]
 
     def pin_depth(self) -> float:
         """Depth (m) of the pin's end (its rounded tip) below the hole entrance along the hole axis, 0 unless the

@@ -74,8 +74,9 @@ def observe(terms: list, measures, low: np.ndarray, high: np.ndarray) -> np.ndar
     ``law``, ``contact``, ``lam``, ``prev_action``, ``target``, ``step``, ``time``, ``noise``), the worlds' fields
     of the task's state ``state(name)`` (``episode.TaskState``) and, for a field that is a table over the episode's
     control instants, its entry at the step ``state_at_step(name)``, the simulator's reads that only some terms need
-    (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``, ``jacobian()``: J_a (..., 3 legs, 2)) and
-    ``task_term(term)``, a task's own per-world term (``ObsTerm.fn``) over its worlds."""
+    (``posture_rate()``, ``motor_angles()``, ``tool_wrench()``, ``jacobian()``: J_a (..., 3 legs, 2); ``sensor(adr)``:
+    the sensors' value at address ``adr``) and ``task_term(term)``, a task's own per-world term (``ObsTerm.fn``) over
+    its worlds."""
     raw = np.concatenate([t.of(measures) if t.of is not None else measures.task_term(t) for t in terms], axis=-1)
     return np.minimum(np.maximum(raw, low), high).astype(np.float32)
 
@@ -98,6 +99,9 @@ class WorldMeasures:
 
     def state_at_step(self, name: str):
         return getattr(self.env._ep.task, name)[0, self.step]
+
+    def sensor(self, adr: int):
+        return self.env.data.sensordata[adr]
 
     def posture_rate(self) -> np.ndarray:
         return self.env.sim.posture_rate()
