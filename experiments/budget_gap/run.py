@@ -80,13 +80,17 @@ def main() -> int:
             if not (run / "model.zip").is_file():
                 train(env_id, "ppo", run, config=cfg, timesteps=BUDGET, seed=seed, progress=False, log=lambda *a: None)
             rows = {}
-            for folder in sorted(checkpoints(run), key=checkpoint_step):
-                step = checkpoint_step(folder)
-                if step % EVERY:
-                    continue  # a checkpoint on the wall-clock timer, not on the schedule
+            saved = {checkpoint_step(f): f for f in checkpoints(run)}
+            for target in range(EVERY, BUDGET + 1, EVERY):
+                # the scheduled checkpoint: the first rollout boundary at or after the target (the others were
+                # saved on the wall-clock timer)
+                step = min((s for s in saved if s >= target), default=None)
+                if step is None or step - target > 4096:
+                    raise SystemExit(f"{run}: no checkpoint at {target} steps (saved: {sorted(saved)})")
+                folder = saved[step]
                 gain = float((score_checkpoint(run, env_id, folder) - base).mean())
-                rows[str(step)] = {"gain": gain, "share": gain / rule_gain}
-                print(f"{env_id} seed {seed} step {step}: gain {gain:+.2f}, share {gain / rule_gain:+.2f}", flush=True)
+                rows[str(target)] = {"gain": gain, "share": gain / rule_gain}
+                print(f"{env_id} seed {seed} step {target} ({step}): gain {gain:+.2f}, share {gain / rule_gain:+.2f}", flush=True)
             task["seeds"][str(seed)] = rows
             path.write_text(json.dumps(doc, indent=1) + "\n")
     print("\n| task | steps | share per seed | mean share |\n|---|---|---|---|")
