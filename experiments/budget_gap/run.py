@@ -34,7 +34,8 @@ def gate_selection(env_id: str) -> dict:
 
 
 def returns(env_id: str, make_agent, env_kwargs=None) -> np.ndarray:
-    records, _ = evaluate(env_id, make_agent, list(TUNING_EVAL_SEEDS), EPISODES, env_kwargs=env_kwargs)
+    # one environment, episode after episode, for every agent: the constant reads that environment's state
+    records, _ = evaluate(env_id, make_agent, list(TUNING_EVAL_SEEDS), EPISODES, env_kwargs=env_kwargs, batch=False)
     return np.array([r["return"] for r in records])
 
 
