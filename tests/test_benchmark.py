@@ -191,9 +191,10 @@ def test_a_result_made_with_another_budget_is_refused(tmp_path):
 def test_runs_made_with_another_entry_are_refused(tmp_path):
     env_id = "VSWrist/Throw-v0"
     gate_ = benchmark.gate_block(env_id, GATE_DIR)
-    entry = benchmark.track_entry(env_id, "ppo", "stiffness", gate_["best_constant"], 80_000)
+    budget = benchmark.cell_budget(env_id, "ppo", None)  # the packaged entry's: only the entry differs
+    entry = benchmark.track_entry(env_id, "ppo", "stiffness", gate_["best_constant"], budget)
     entry[env_id]["learning_rate"] = 1.0   # what a changed configs/ppo.yaml would give
-    doc = {"task": env_id, "gate": gate_, "protocol": benchmark.protocol_block([0, 1], {"ppo": 80_000}),
+    doc = {"task": env_id, "gate": gate_, "protocol": benchmark.protocol_block([0, 1], {"ppo": budget}),
            "cells": {"stiffness/ppo": {"entry": entry, "runs": {"0": _run([1.0, 2.0])}}}}
     (tmp_path / "Throw-v0.json").write_text(json.dumps(doc))
     with pytest.raises(benchmark.BenchmarkError, match="another hyperparameter entry"):
