@@ -202,8 +202,11 @@ def record_history(ep: EpisodeState, ids, steps, err) -> None:
 
 def at_step(ep: EpisodeState, ids, table) -> np.ndarray:
     """The worlds ``ids``' entries (L, ...) of ``table`` (N, steps + 1, ...: a value at each control instant of the
-    episode, as ``references``) at their steps."""
-    return table[np.arange(len(table))[ids], ep.step[ids]]
+    episode, as ``references``) at their steps, to read (the single env's, ``ONE``, is a view of its row: a basic
+    index, which costs a fraction of an array one on every step)."""
+    if ids is ONE:
+        return table[ONE, ep.step.item(0)]
+    return table[ids if isinstance(ids, np.ndarray) else np.arange(len(table))[ids], ep.step[ids]]
 
 
 def episode_history(ep: EpisodeState, ids) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -37,8 +37,12 @@ x the rigid bound, aimed within ``success_aim_error`` of the swing's plane, RUD 
 
 Cost: until the release is near (the ball within ``RELEASE_REACH`` of the plane in the forward swing) and after it,
 a control period is one ``mj_step`` call; in between it runs substep by substep to find the release to the
-millisecond, so a batch steps these worlds world by world on its threads (``batch.VSWristVectorEnv``: the compiled advance needs the
-base's ``_advance_physics``).
+millisecond, so a batch steps these worlds world by world on its threads (``batch.VSWristVectorEnv``: the compiled
+advance needs the base's ``_advance_physics``), each writing the release into its row of the task state
+(``task_state``). The reward terms, info, success and the ``released`` observation term are written over arrays of
+worlds (``hooks``): a batch computes them once for all its worlds. The reward terms are a table over the episode's
+control steps, written at reset and by the release, so that a step reads its row; the RUD and PS errors before the
+release come from the episode's posture-error history at its end.
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ import mujoco
 import numpy as np
 
 from .base import VSWristEnv
+from .episode import at_step, episode_history, task_field
 from .hammer import ramp_through
 
 NOMINAL_BALL_MASS = 0.15   # kg, compiled in the model; each episode sets its own mass in place
@@ -91,6 +96,40 @@ class ThrowEnv(VSWristEnv):
     }
     task_reward_terms = ("throw", "miss")
     reads_sensors = False  # the release reads body poses and velocities only
+    PS = 0.0  # rad, the PS reference: the throw is in FE
+
+    @property
+    def task_state(self) -> dict:
+        """The episode's draws: the ball (``ball_mass``, kg; ``ball_L``, m from the hand along the tool X axis), the
+        throw's ``rud`` (rad) and ``fe_release`` (rad, the release plane's FE); the swing's geometry
+        (``_reset_worlds``): ``swing_t0`` (s, the forward swing's start), the rigid bound ``rigid`` (m/s), the ball's
+        unit direction of motion ``dir`` and its centre ``c`` (m, base frame) at the release plane's posture, the
+        swing plane's unit ``normal``; ``t0`` (s, the simulator's time at the episode's t = 0).
+
+        The release, found substep by substep (on a batch's physics threads, each world writing its own row): the
+        ball seen behind the release plane in the forward swing (``armed``), then past it (``passed``); the fastest
+        state since (``peak_time``, s of data.time; ``peak_speed``, m/s, 0 before; ``peak_vel``, m/s); the release
+        (``released``; ``release_time``, s; ``release_speed``, m/s; ``aim``, rad off the swing plane; ``distance``,
+        m; ``timely``: by the deadline; ``release_step``: the steps taken before the period it came in); whether its
+        mass is still to leave the hand at the next substep boundary (``mass_due``). The reward terms (``terms``:
+        throw and miss at each control step, a table over the episode's control instants as the posture references):
+        the miss at the last step, written at reset, cleared by a timely release, which writes its throw at its
+        period's step.
+
+        The reference's ramp (``_ref_t``, ``_ref_fe``) stays on the world: its length varies with the episode (the
+        ramp's integration points), and the steps read the posture references the reset computed from it."""
+        return {"ball_mass": ((), float), "ball_L": ((), float), "rud": ((), float), "fe_release": ((), float),
+                "swing_t0": ((), float), "rigid": ((), float), "dir": ((3,), float), "c": ((3,), float),
+                "normal": ((3,), float), "t0": ((), float),
+                "armed": ((), bool), "passed": ((), bool), "peak_time": ((), float), "peak_speed": ((), float),
+                "peak_vel": ((3,), float),
+                "released": ((), bool), "release_time": ((), float), "release_speed": ((), float), "aim": ((), float),
+                "distance": ((), float), "timely": ((), bool), "release_step": ((), np.int64), "mass_due": ((), bool),
+                "terms": ((self.episode_steps + 1, 2), float)}
+
+    _ball_mass, _ball_L, _rud, _fe_release, _swing_t0, _rigid, _dir, _c, _normal, _t0, _peak_vel = map(
+        task_field, ("ball_mass", "ball_L", "rud", "fe_release", "swing_t0", "rigid", "dir", "c", "normal", "t0",
+                     "peak_vel"))
 
     def _validate_task(self) -> None:
         from .config import EnvConfigError
@@ -121,23 +160,22 @@ class ThrowEnv(VSWristEnv):
         self._vel6 = np.zeros(6)
 
     def _task_obs_terms(self):
-        from .observations import ObsTerm
-        return [ObsTerm("released", 1, "-", "1 once the ball has left the hand, else 0 (no sensor noise)",
-                        lambda: np.array([1.0 if self._release is not None else 0.0]), 0.0, 1.0)]
+        from .observations import ObsTerm, column
+        return [ObsTerm("released", 1, "-", "1 once the ball has left the hand, else 0 (no sensor noise)", None,
+                        0.0, 1.0, lambda m: column(m.state("released")))]
 
     # ------------------------------------------------------------------ episode
     def _task_reset(self, rng):
         tp = self.tp
-        self._ball_mass = float(rng.uniform(*tp["ball_mass"]))
-        self._ball_L = float(rng.uniform(*tp["ball_distance"]))
-        self._rud = float(rng.uniform(*tp["rud_range"]))
-        self._fe_release = float(rng.uniform(*tp["fe_release"]))
-        self._ps = 0.0
-        self._set_ball(self._ball_mass)
-        self._release = None       # (time s, speed m/s, aim error rad, distance m) of the release
-        self._release_seen = False  # whether the step that saw the release has paid it
-        self._mass_due = False      # the ball has left: its mass leaves the hand at the next substep boundary
-        return np.array([self._rud, tp["fe_start"]]), self._ps, -1.0
+        mass = float(rng.uniform(*tp["ball_mass"]))
+        L = float(rng.uniform(*tp["ball_distance"]))
+        rud = float(rng.uniform(*tp["rud_range"]))
+        fe_release = float(rng.uniform(*tp["fe_release"]))
+        st = self._ep.task
+        st.put(0, ball_mass=mass, ball_L=L, rud=rud, fe_release=fe_release)
+        st.terms[0, -1, 1] = -1.0  # a miss, unless a timely release comes
+        self._set_ball(mass)
+        return np.array([rud, tp["fe_start"]]), self.PS, -1.0
 
     def _set_ball(self, mass: float) -> None:
         """The ball's mass and inertia (solid sphere) and place, in place (no recompilation)."""
@@ -158,11 +196,11 @@ class ThrowEnv(VSWristEnv):
                                                tp["windup_start_s"], tp["windup_hold_s"], e.cfg["episode_s"])
             # the forward swing starts where the reference leaves fe_back
             at_back = np.flatnonzero(e._ref_fe <= tp["fe_back"])
-            e._swing_t0 = float(e._ref_t[at_back[-1]]) if at_back.size else math.inf
-            e._rigid, e._dir, e._c = e._swing_geometry(e._fe_release)
-            d2 = e._swing_geometry(e._fe_release + 0.1)[1]
-            n = np.cross(e._dir, d2)
-            e._normal = n / np.linalg.norm(n)  # the swing plane's normal
+            swing_t0 = float(e._ref_t[at_back[-1]]) if at_back.size else math.inf
+            fe = e._fe_release
+            rigid, d, c = e._swing_geometry(fe)
+            n = np.cross(d, e._swing_geometry(fe + 0.1)[1])
+            e._ep.task.put(0, swing_t0=swing_t0, rigid=rigid, dir=d, c=c, normal=n / np.linalg.norm(n))
 
     def _fe_rate(self, fe: float, fraction: float) -> float:
         """FE rate (rad/s) at which the fastest-turning PM motor runs at ``fraction`` x its speed limit."""
@@ -175,8 +213,9 @@ class ThrowEnv(VSWristEnv):
         fastest motor runs at ``swing_speed`` x its limit), the unit direction in which the ball moves as FE grows
         and the ball's centre (m, base frame), from the chord between fe - h and fe + h (h = 1e-5 rad)."""
         h = 1e-5
-        u = np.array([[self._rud, fe + h], [self._rud, fe - h], [self._rud, fe]])
-        p = self.tool_point(u, np.full(3, self._ps), np.tile([self._ball_L, 0.0, 0.0], (3, 1)))
+        rud = self._rud
+        u = np.array([[rud, fe + h], [rud, fe - h], [rud, fe]])
+        p = self.tool_point(u, np.full(3, self.PS), np.tile([self._ball_L, 0.0, 0.0], (3, 1)))
         d = p[0] - p[1]
         nd = float(np.linalg.norm(d))
         return self._fe_rate(fe, self.tp["swing_speed"]) * nd / (2 * h), d / nd, p[2]
@@ -184,66 +223,98 @@ class ThrowEnv(VSWristEnv):
     def _reference(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         return np.stack([np.full_like(t, self._rud), np.interp(t, self._ref_t, self._ref_fe),
-                         np.full_like(t, self._ps)], axis=-1)
+                         np.full_like(t, self.PS)], axis=-1)
 
     def _after_reset(self) -> None:
-        self._t0 = float(self.data.time)  # the episode's t = 0 (after the settling)
+        self._ep.task.t0[0] = self.data.time  # the episode's t = 0 (after the settling)
 
     # ------------------------------------------------------------------ the release, to the substep
-    def _behind(self) -> float:
-        """How far (m) the ball's centre is behind the release plane (negative: past it), from ``data.xpos``."""
-        return float((self._c - self.data.xpos[self._ball_body]) @ self._dir)
+    # These run in a batch on its physics threads, world by world: each world reads and writes only its own row of
+    # the task state (``self._ep.task``: (1, ...) views of the batch's arrays).
+    def _behind(self, c: np.ndarray, direction: np.ndarray) -> float:
+        """How far (m) the ball's centre is behind the release plane (negative: past it), from ``data.xpos``: ``c``
+        and ``direction`` are this world's ``c`` and ``dir`` (rows of the task state)."""
+        return float((c - self.data.xpos[self._ball_body]) @ direction)
 
     def _advance_physics(self, duration: float, first: bool) -> None:
-        if self._release is not None and not self._mass_due:
+        st = self._ep.task
+        released = st.released.item(0)
+        if released and not st.mass_due.item(0):
             self.sim.step(duration, restart_peak=first)
             return
-        if self._release is None and not self._passed:
-            # the release waits for the forward swing and for the ball to be behind the plane (the wind-up may
-            # start past it, and a soft wrist may lag the wind-up's turn)
-            if self._t < self._swing_t0 - 1e-9:
-                self.sim.step(duration, restart_peak=first)
-                return
+        # the release waits for the forward swing (nothing of it has happened before), and for the ball to be
+        # behind the plane (the wind-up may start past it, and a soft wrist may lag the wind-up's turn)
+        if self._t < st.swing_t0.item(0) - 1e-9:
+            self.sim.step(duration, restart_peak=first)
+            return
+        due, armed, passed = st.mass_due.item(0), st.armed.item(0), st.passed.item(0)
+        c, direction = st.c[0], st.dir[0]
+        if not released and not passed:
             self.sim.sync_kinematics()  # xpos of the state this period starts from
-            behind = self._behind()
-            self._armed = self._armed or behind > 0.0
+            behind = self._behind(c, direction)
+            if not armed and behind > 0.0:
+                armed = True
+                st.armed[0] = True
             if behind > RELEASE_REACH:
                 self.sim.step(duration, restart_peak=first)
                 return
-        # after mj_step(m, d, 1), xpos and the body velocities are those of the state the substep started from
-        m, d = self.model, self.data
+        # substep by substep: arm, pass the plane, release at the speed's peak. After mj_step(m, d, 1), xpos and
+        # the body velocities are those of the state the substep started from
+        d = self.data
         dt = self.sim.timestep
         for k in range(int(round(duration / dt))):
-            if self._mass_due:  # the substep boundary after the one that recognised the peak: the ball has gone
-                self._mass_due = False
+            if due:  # the substep boundary after the one that recognised the peak: the ball has gone
+                due = False
+                st.mass_due[0] = False
                 self._set_ball(MASS_GONE)
             self.sim.step(dt, restart_peak=first and k == 0)
-            if self._release is None:
-                self._read_substep(float(d.time) - dt)
+            if released:
+                continue
+            behind = self._behind(c, direction)
+            if not passed:
+                if armed and behind <= 0.0:
+                    passed = True
+                    st.passed[0] = True
+                else:
+                    if not armed and behind > 0.0:
+                        armed = True
+                        st.armed[0] = True
+                    continue
+            released = due = self._at_peak(st, float(d.time) - dt)
 
-    def _read_substep(self, time: float) -> None:
-        """One state of the forward swing (``time``: its data.time): arm, pass the plane, or release at the peak."""
-        behind = self._behind()
-        if not self._passed:
-            if self._armed and behind <= 0.0:
-                self._passed = True
-            else:
-                self._armed = self._armed or behind > 0.0
-                return
+    def _at_peak(self, st, time: float) -> bool:
+        """A state of the forward swing past the release plane (``time``: its data.time; ``st``: this world's task
+        state): the fastest yet, or the first slower one, which releases the ball at the peak (returns whether)."""
         mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, self._ball_body, self._vel6, 0)
         vel = self._vel6[3:].copy()
         speed = float(np.linalg.norm(vel))
-        if self._peak is not None and speed < self._peak[1]:
-            self._on_release(self._peak[0], self._peak[2])
-        else:
-            self._peak = (time, speed, vel)
+        if speed < st.peak_speed.item(0):  # slower than the peak (none yet: 0, and a speed is never below it)
+            self._on_release(st, st.peak_time.item(0), st.peak_vel[0])
+            return True
+        st.peak_time[0] = time
+        st.peak_speed[0] = speed
+        st.peak_vel[0] = vel
+        return False
 
-    def _on_release(self, time: float, vel: np.ndarray) -> None:
+    def _on_release(self, st, time: float, vel: np.ndarray) -> None:
         speed = float(np.linalg.norm(vel))
         # out of the swing plane (the throw's plane): the angle between the velocity and the plane
-        aim = math.asin(min(1.0, abs(float(vel @ self._normal)) / speed)) if speed > 0.0 else math.pi / 2
-        self._release = (time - self._t0, speed, aim, self._distance(vel))
-        self._mass_due = True
+        aim = math.asin(min(1.0, abs(float(vel @ st.normal[0])) / speed)) if speed > 0.0 else math.pi / 2
+        t = time - st.t0.item(0)
+        st.release_time[0] = t
+        st.release_speed[0] = speed
+        st.aim[0] = aim
+        st.distance[0] = self._distance(vel)
+        # the steps taken before this period are those before the release (``off_plane``); the period's own step
+        # (counted once the physics is over) pays the throw, if timely (a late release earns nothing)
+        k = self._ep.step.item(0)
+        st.release_step[0] = k
+        if t <= st.swing_t0.item(0) + self.tp["release_deadline_s"]:
+            st.timely[0] = True
+            st.terms[0, k + 1, 0] = speed / self.cfg["scales"]["speed"]
+            st.terms[0, -1, 1] = 0.0  # no miss
+        st.released[0] = True
+        st.mass_due[0] = True
 
     def _distance(self, vel: np.ndarray) -> float:
         """How far (m, horizontally) a projectile with velocity ``vel`` (m/s) from the release point lands
@@ -256,42 +327,39 @@ class ThrowEnv(VSWristEnv):
     # ------------------------------------------------------------------ reward and success
     def timely(self) -> bool:
         """Whether the ball has been released, by the deadline after the forward swing began."""
-        return self._release is not None and \
-            self._release[0] <= self._swing_t0 + self.tp["release_deadline_s"]
+        return self._ep.task.timely.item(0)
 
-    def _task_reward_terms(self, err) -> dict:
-        if self._release is None:  # until the release: how far RUD and PS left the swing's plane
-            self._off_plane = max(self._off_plane, abs(float(err[0])), abs(float(err[2])))
-        throw = 0.0
-        if self._release is not None and not self._release_seen:
-            self._release_seen = True
-            throw = self._release[1] / self.cfg["scales"]["speed"] if self.timely() else 0.0
-        last = self._step >= self.episode_steps
-        return {"throw": throw, "miss": -1.0 if last and not self.timely() else 0.0}
+    @classmethod
+    def _task_reward_terms_worlds(cls, worlds: list, ep, ids, err) -> dict:
+        terms = at_step(ep, ids, ep.task.terms)
+        return {"throw": terms[:, 0], "miss": terms[:, 1]}
 
-    def _success(self) -> bool:
-        return self.timely() and self._release[1] >= self.tp["success_speed_ratio"] * self._rigid and \
-            self._release[2] <= self.tp["success_aim_error"] and self._off_plane <= self.tp["success_plane_error"]
+    @classmethod
+    def _success_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        tp = worlds[0].tp
+        st = ep.task
+        err, _, _ = episode_history(ep, ids)
+        return (st.timely[ids] & (st.release_speed[ids] >= tp["success_speed_ratio"] * st.rigid[ids])
+                & (st.aim[ids] <= tp["success_aim_error"])
+                & (off_plane(err, st.release_step[ids]) <= tp["success_plane_error"]))
 
-    def _task_info(self) -> dict:
-        # no release yet: released False and zeros (no NaN in info: equal episodes must give equal infos)
-        r = getattr(self, "_release", None)
-        return {"released": r is not None, "release_speed": 0.0 if r is None else r[1],
-                "release_time": 0.0 if r is None else r[0], "aim_error": 0.0 if r is None else r[2],
-                "throw_distance": 0.0 if r is None else r[3], "rigid_speed": float(getattr(self, "_rigid", 0.0))}
+    @classmethod
+    def _task_info_worlds(cls, worlds: list, ep, ids) -> dict:
+        # before a release: released False and zeros, the cleared state (no NaN in info: equal episodes must give
+        # equal infos)
+        st = ep.task
+        return {"released": st.released[ids], "release_speed": st.release_speed[ids],
+                "release_time": st.release_time[ids], "aim_error": st.aim[ids], "throw_distance": st.distance[ids],
+                "rigid_speed": st.rigid[ids]}
 
     def __setstate__(self, state):
         super().__setstate__(state)
-        if hasattr(self, "_ball_L"):  # the episode's ball distance (the rebuilt model has the nominal one)
+        if self._ball_L > 0.0:  # the episode's ball distance (the rebuilt model has the nominal one; 0: none drawn)
             self.model.body_pos[self._ball_body] = (self._ball_L, 0.0, 0.0)
 
-    def _reset_state(self) -> None:
-        super()._reset_state()
-        self._release = None
-        self._release_seen = False
-        self._mass_due = False
-        self._armed = False  # the ball has been seen behind the release plane in the forward swing
-        self._passed = False  # ... and then past it: the release comes at its next speed peak
-        self._peak = None     # (time s, speed m/s, velocity) of the fastest state since it passed
-        self._t0 = 0.0
-        self._off_plane = 0.0  # rad, largest RUD or PS error before the release
+
+def off_plane(err, steps) -> np.ndarray:
+    """How far (rad) RUD and PS left the swing's plane before the release: the largest of their errors in the first
+    ``steps`` (L,) rows of the worlds' posture errors ``err`` (L, k, 3) (a NaN error counts as none; 0 if none)."""
+    before = np.arange(err.shape[1]) < steps[:, None]
+    return np.fmax.reduce(np.abs(err[..., ::2]), axis=(1, 2), where=before[..., None], initial=0.0)
