@@ -157,11 +157,12 @@ class PeriodMeanForce:
 
     The task calls ``_add_contact_meter(spec, body, geom1, geom2)`` in ``_scene`` and ``_find_contact_meter()``
     in ``_scene_ids``, and sets ``self._touch_adr`` (the touch sensor read at reset, before any period ran);
-    ``_on_first_contact(time, pos, vel)`` sees each period's first counted contact. ``_last_substep_force()`` is
-    the other reading, the touch sensor at the end of the period."""
+    ``_on_first_contact(time, pos, vel)`` sees each period's first counted contact, when the period's force is read
+    (``_contact_force``: in the step's measures, after its clock advanced), with either physics.
+    ``_last_substep_force()`` is the other reading, the touch sensor at the end of the period."""
 
     _meter_names: tuple = ()
-    _force_sum, _force_n, _touched, _period_ran = 0.0, 0, False, False
+    _force_sum, _force_n, _first_contact, _period_ran = 0.0, 0, None, False
 
     def _add_contact_meter(self, spec: mujoco.MjSpec, body, geom1: str, geom2: str | None = None) -> None:
         """Count contacts of geom ``geom1`` with ``geom2`` (None: with anything); ``body`` (an MjsBody) is the body
@@ -183,7 +184,7 @@ class PeriodMeanForce:
 
     def _reset_state(self) -> None:
         super()._reset_state()
-        self._force_sum, self._force_n, self._touched = 0.0, 0, False
+        self._force_sum, self._force_n, self._first_contact = 0.0, 0, None
         self._period_ran = False
 
     def _on_first_contact(self, time: float, pos: np.ndarray, vel: np.ndarray) -> None:
@@ -199,9 +200,10 @@ class PeriodMeanForce:
             self.sim.step(duration, restart_peak=first)
             return
         # the reference: after mj_step(m, d, 1) the contact list, the solved forces and the body velocities are
-        # those of the state the substep started from (what the plugin's advance callback sees)
+        # those of the state the substep started from (what the plugin's advance callback sees); the first contact
+        # is kept for the period's reading, as the plugin keeps it in its state
         if first:
-            self._force_sum, self._force_n, self._touched = 0.0, 0, False
+            self._force_sum, self._force_n, self._first_contact = 0.0, 0, None
         m, d, f = self.model, self.data, self._cforce
         g1, g2 = self._meter_geom1, self._meter_geom2
         dt = self.sim.timestep
@@ -212,10 +214,9 @@ class PeriodMeanForce:
                 a, b = c.geom1, c.geom2
                 if not ((a == g1 or b == g1) if g2 < 0 else ((a == g1 and b == g2) or (a == g2 and b == g1))):
                     continue
-                if not self._touched:
-                    self._touched = True
+                if self._first_contact is None:
                     mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, self._meter_body, self._vel6, 0)
-                    self._on_first_contact(float(d.time), c.pos.copy(), self._vel6[3:].copy())
+                    self._first_contact = (float(d.time), c.pos.copy(), self._vel6[3:].copy())
                 mujoco.mj_contactForce(m, d, i, f)
                 self._force_sum += f[0]
             self._force_n += 1
@@ -239,6 +240,8 @@ class PeriodMeanForce:
             return out
         if self._force_n == 0:
             return self._last_substep_force()
+        if self._first_contact is not None:
+            self._on_first_contact(*self._first_contact)
         out = self._force_sum / self._force_n
-        self._force_sum, self._force_n, self._touched = 0.0, 0, False
+        self._force_sum, self._force_n, self._first_contact = 0.0, 0, None
         return out
