@@ -67,10 +67,15 @@ def test_v1_winds_up_then_swings_with_the_fastest_motor_at_its_speed_limit():
     np.testing.assert_allclose(fwd, tp["swing_speed"] * vmax, rtol=0.01)
     # FE falls through the wind-up and rises after the turn
     assert u._reference(t_turn - 0.02)[1] < tp["fe_start"] and u._reference(t_turn + 0.02)[1] > tp["fe_back"]
-    u._strike = (t_turn + tp["strike_deadline_s"] - 1e-6, 1.0, 0.0)
-    assert u.timely()
-    u._strike = (t_turn + tp["strike_deadline_s"] + 1e-6, 1.0, 0.0)
-    assert not u.timely()
+    assert not u.timely()  # no strike yet
+
+    def strike_at(t):  # a first contact whose substep starts t s into the episode
+        u._ep.task.put(0, struck=False)
+        u._on_first_contact(u._t0 + t + u.sim.timestep, u._face.copy(), np.zeros(3))
+        return u.timely()
+
+    assert strike_at(t_turn + tp["strike_deadline_s"] - 1e-6)
+    assert not strike_at(t_turn + tp["strike_deadline_s"] + 1e-6)
 
 
 def test_leg_rate_matches_finite_differences_of_the_inverse_kinematics():
@@ -218,3 +223,21 @@ def test_swings_integrated_over_arrays_are_the_scalar_swings_to_the_bit():
     for ts, fes in short:
         assert np.array_equal(ts, alone[0]) and np.array_equal(fes, alone[1])
     v.close()
+
+
+def test_off_plane_error_is_the_running_maximum_up_to_the_strike():
+    """The success's off-plane error, read from the episode's error history: what a running maximum of the RUD and PS
+    errors from 0 (Python's max, which skips a NaN error) reaches by the strike's step, or by the last step without
+    a strike."""
+    from vswrist_gym.envs import hammer
+
+    rng = np.random.default_rng(0)
+    err = rng.normal(0.0, 0.1, (3, 12, 3))
+    err[1, 4, 0] = np.nan
+    err[2, :, 2] = np.nan
+    strike_step = np.array([0, 7, 12])
+    for e, k, got in zip(err, strike_step, hammer.off_plane_errors(err, strike_step)):
+        running = 0.0
+        for row in e[:k or len(e)]:
+            running = max(running, abs(float(row[0])), abs(float(row[2])))
+        assert got == running

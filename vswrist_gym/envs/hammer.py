@@ -42,12 +42,14 @@ import math
 import mujoco
 import numpy as np
 
-from .shared import PeriodMeanForce, add_mocap_box_body, frame_from_z, quat_from_matrix
 from .base import VSWristEnv
+from .episode import at_step, episode_history, task_field
+from .shared import PeriodMeanForce, add_mocap_box_body, frame_from_z, quat_from_matrix
 
 ANVIL_HALF = (0.05, 0.045, 0.008)  # m: along the handle, across the swing plane, thickness (along the normal)
 HEAD_HALF_LENGTH = 0.02            # m, half the head's length along the swing (its axis)
 NOMINAL_HEAD_MASS = 0.2            # kg, compiled in the model; each episode sets its own mass in place
+IMPACT, MISS = 0, 1  # the columns of the task's reward terms (``HammerEnv.task_reward_terms``)
 # from this many worlds resetting together a batch integrates their swings over arrays: each step of the ramp then
 # costs two array calls of the kinematics (about 0.15 ms whatever the count) against 2 x 6 us per world one by one
 RAMP_ARRAY_MIN_WORLDS = 8
@@ -166,6 +168,27 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         "friction": ("number", 0.0, 5.0),
     }
     task_reward_terms = ("impact", "miss")
+    @property
+    def task_state(self) -> dict:
+        """The episode's draws (the head's ``head_mass``, kg, at ``handle`` m; the swing's ``rud`` and ``fe_strike``,
+        rad); what its reset computes from them (``swing_t0``: when the forward swing starts, s; ``rigid``: the rigid
+        bound, m/s; ``normal``: the anvil's normal, into it; ``face``: the nail, m, base frame; ``t0``: the
+        episode's t = 0 in simulator time, s); the first strike (``struck``; its time ``strike_t``, s, normal speed
+        ``strike_speed``, m/s, distance from the nail ``strike_offset``, m, whether it came by the deadline,
+        ``timely``, and the step in whose period it came, ``strike_step``); and the task's reward terms at each of
+        the episode's control steps (``reward_terms``: ``impact`` and ``miss``, written as soon as they are known,
+        so that a step only reads its row: the reset writes the miss of the last step, a strike in time its impact
+        and takes the miss back). The swing's FE ramp (``_swing_t``, ``_swing_fe``) stays on each world: its length
+        varies with the episode, and only the reset's reference table reads it."""
+        return {"head_mass": ((), float), "handle": ((), float), "rud": ((), float), "fe_strike": ((), float),
+                "swing_t0": ((), float), "rigid": ((), float), "normal": ((3,), float), "face": ((3,), float),
+                "t0": ((), float), "struck": ((), bool), "strike_t": ((), float), "strike_speed": ((), float),
+                "strike_offset": ((), float), "timely": ((), bool), "strike_step": ((), np.int64),
+                "reward_terms": ((self.episode_steps + 1, len(self.task_reward_terms)), float)}
+
+    _head_mass, _handle, _rud, _fe_strike, _swing_t0, _rigid, _normal, _face, _t0 = map(
+        task_field, ("head_mass", "handle", "rud", "fe_strike", "swing_t0", "rigid", "normal", "face", "t0"))
+    _ps = 0.0  # rad: the swing's PS, in whose plane the RUD path of the head lies
 
     def _validate_task(self) -> None:
         from .config import EnvConfigError
@@ -211,24 +234,23 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
     # ------------------------------------------------------------------ episode
     def _task_reset(self, rng):
         tp = self.tp
-        self._head_mass = float(rng.uniform(*tp["head_mass"]))
-        self._handle = float(rng.uniform(*tp["handle_length"]))
-        self._rud = float(rng.uniform(*tp["rud_range"]))
-        self._fe_strike = float(rng.uniform(*tp["fe_strike"]))
-        self._ps = 0.0
+        head_mass = float(rng.uniform(*tp["head_mass"]))
+        handle = float(rng.uniform(*tp["handle_length"]))
+        rud = float(rng.uniform(*tp["rud_range"]))
+        fe_strike = float(rng.uniform(*tp["fe_strike"]))
+        ts = self._ep.task
+        ts.put(0, head_mass=head_mass, handle=handle, rud=rud, fe_strike=fe_strike)
+        ts.reward_terms[0, self.episode_steps, MISS] = -1.0  # unless a strike comes in time
         m = self.model
         # in place, like the base's tool-mass randomisation (no recompilation; MuJoCo's constraint scaling
         # keeps the compiled nominal head)
-        m.body_pos[self._head_body] = (self._handle, 0.0, 0.0)
-        m.body_mass[self._head_body] = self._head_mass
+        m.body_pos[self._head_body] = (handle, 0.0, 0.0)
+        m.body_mass[self._head_body] = head_mass
         # the capsule's axis is the body's Y axis: permute the cylinder's (x, x, z) inertia to (x, z, x)
-        ix, _, iz = head_inertia(self._head_mass, tp["head_radius"], HEAD_HALF_LENGTH)
+        ix, _, iz = head_inertia(head_mass, tp["head_radius"], HEAD_HALF_LENGTH)
         m.body_inertia[self._head_body] = (ix, iz, ix)
         self._swing_t = self._swing_fe = None  # the swing's ramp: _reset_worlds, over the worlds resetting together
-        self._strike = None          # (time s, normal speed m/s) of the first strike
-        self._impact_reward = 0.0    # the strike's reward, paid on the step it happened
-        self._rigid = self._swing_n = self._head_c = None  # _reset_worlds: the swing's geometry at the strike
-        return np.array([self._rud, tp["fe_start"]]), self._ps, -1.0
+        return np.array([rud, tp["fe_start"]]), self._ps, -1.0
 
     @classmethod
     def _reset_worlds(cls, worlds: list) -> None:
@@ -240,20 +262,19 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         tp = first.tp
         if first.windup:
             for e in worlds:
-                back = lambda fe, e=e: e._fe_rate(fe, tp["windup_speed"])  # noqa: E731
                 e._swing_t, e._swing_fe = ramp_through((tp["fe_start"], tp["fe_back"], tp["fe_end"]),
-                                                       (back, e._fe_rate), tp["swing_start_s"],
-                                                       tp["windup_hold_s"], e.cfg["episode_s"])
+                                                       (e._rate_of(tp["windup_speed"]), e._rate_of()),
+                                                       tp["swing_start_s"], tp["windup_hold_s"], e.cfg["episode_s"])
                 # the forward swing starts where the reference leaves fe_back
                 at_back = np.flatnonzero(e._swing_fe <= tp["fe_back"])
-                e._swing_t0 = float(e._swing_t[at_back[-1]]) if at_back.size else math.inf
+                e._ep.task.put(0, swing_t0=float(e._swing_t[at_back[-1]]) if at_back.size else math.inf)
             return
         for e in worlds:
-            e._swing_t0 = tp["swing_start_s"]
+            e._ep.task.put(0, swing_t0=tp["swing_start_s"])
         args = (tp["fe_start"], tp["fe_end"])
         if len(worlds) < RAMP_ARRAY_MIN_WORLDS:
             for e in worlds:
-                e._swing_t, e._swing_fe = ramp_reference(*args, e._fe_rate, tp["swing_start_s"], e.cfg["episode_s"])
+                e._swing_t, e._swing_fe = ramp_reference(*args, e._rate_of(), tp["swing_start_s"], e.cfg["episode_s"])
             return
         rud = np.array([e._rud for e in worlds])
         gain = tp["swing_speed"] * first.nominal_params.motor.speed_limit
@@ -270,16 +291,18 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
     def _fe_rate(self, fe: float, fraction: float | None = None) -> float:
         """FE rate (rad/s) at which the fastest-turning PM motor runs at ``fraction`` (default ``swing_speed``)
         x its speed limit."""
-        f = self.tp["swing_speed"] if fraction is None else fraction
-        return f * self.nominal_params.motor.speed_limit / self._leg_rate(fe)
+        return self._rate_of(fraction)(fe)
+
+    def _rate_of(self, fraction: float | None = None):
+        """``_fe_rate`` at this episode's RUD as a function of FE, with the RUD and the gain read once: the reset
+        integrates the swing with two of these per millisecond."""
+        gain = (self.tp["swing_speed"] if fraction is None else fraction) * self.nominal_params.motor.speed_limit
+        ctrl, rud = self.ctrl, self._rud
+        return lambda fe: gain / leg_rate(ctrl, rud, fe)
 
     def _leg_rate(self, fe: float) -> float:
-        """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid). The
-        controller's closed-form J_a (``AnalyticController._q1_ja``; tests/test_hammer.py checks it against central
-        differences of the exact inverse kinematics): the reset integrates the swing with two of these per
-        millisecond, and the closed form costs about a thirtieth of the two IK solutions a difference needs."""
-        _, Ja = self.ctrl._q1_ja(self._rud, fe)
-        return max(abs(Ja[0][1]), abs(Ja[1][1]), abs(Ja[2][1]))
+        """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid): ``leg_rate``."""
+        return leg_rate(self.ctrl, self._rud, fe)
 
     def swing_direction(self, fe: float) -> np.ndarray:
         """Unit direction (base frame) in which the head centre moves as FE grows, at (rud, fe), rigid."""
@@ -310,22 +333,21 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
 
     @classmethod
     def _strike_geometry(cls, worlds: list) -> None:
-        """Each world's rigid bound, swing direction and head centre at its strike posture, for ``_after_reset``."""
+        """Each world's rigid bound, and the anvil's normal (the swing direction) and the nail (where the head's
+        end face is) at its strike posture, for ``_after_reset``."""
         rigid, n, c = cls._swing_geometry(worlds, np.array([e._fe_strike for e in worlds]))
-        for e, rk, nk, ck in zip(worlds, rigid, n, c):
-            e._rigid, e._swing_n, e._head_c = rk, nk, ck
+        face = c + (HEAD_HALF_LENGTH + worlds[0].tp["head_radius"]) * n
+        for e, rk, nk, fk in zip(worlds, rigid, n, face):
+            e._ep.task.put(0, rigid=rk, normal=nk, face=fk)
 
     def _after_reset(self) -> None:
         # the anvil's face (its +Z) meets the head's end face at the strike posture, facing the swing
-        n, c = self._swing_n, self._head_c
-        face = c + (HEAD_HALF_LENGTH + self.tp["head_radius"]) * n
+        n, face = self._normal, self._face
         up = np.array([0.0, 0.0, 1.0])
         R = frame_from_z(-n, y_hint=up - (up @ n) * n)
         self.data.mocap_pos[self._mocap] = face
         self.data.mocap_quat[self._mocap] = quat_from_matrix(R)
-        self._normal = n  # into the anvil
-        self._face = face  # the nail: where the head's face meets the anvil on the nominal swing
-        self._t0 = float(self.data.time)  # the episode's t = 0 (after the settling)
+        self._ep.task.put(0, t0=float(self.data.time))  # the episode's t = 0 (after the settling)
 
     def _reference(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=float)
@@ -335,46 +357,72 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
     # ------------------------------------------------------------------ the strike, to the substep
     def _on_first_contact(self, time: float, pos: np.ndarray, vel: np.ndarray) -> None:
         # the first substep that finds the head on the anvil: its start (time is after it) and the head's
-        # velocity there, before any contact force acted
-        if self._strike is None:
+        # velocity there, before any contact force acted; read with the step's measures (its clock advanced)
+        ts = self._ep.task
+        if not ts.struck[0]:
             t = time - self._t0 - self.sim.timestep
+            normal = self._normal
+            speed = float(vel @ normal)
             off = pos - self._face
-            off -= (off @ self._normal) * self._normal  # in the face's plane
-            self._strike = (t, float(vel @ self._normal), float(np.linalg.norm(off)))
+            off -= (off @ normal) * normal  # in the face's plane
+            timely = t <= self._swing_t0 + self.tp["strike_deadline_s"]
+            step = self._ep.step.item(0)
+            ts.put(0, struck=True, strike_t=t, strike_speed=speed, strike_offset=float(np.linalg.norm(off)),
+                   timely=timely, strike_step=step)
+            if timely:  # paid on this step, and no miss
+                ts.reward_terms[0, step, IMPACT] = speed / self.cfg["scales"]["speed"]
+                ts.reward_terms[0, self.episode_steps, MISS] = 0.0
 
     # ------------------------------------------------------------------ reward and success
     def timely(self) -> bool:
         """Whether the head has struck the anvil, by the deadline after the forward swing began."""
-        return self._strike is not None and self._strike[0] <= self._swing_t0 + self.tp["strike_deadline_s"]
+        return self._ep.task.timely.item(0)
 
-    def _task_reward_terms(self, err) -> dict:
-        if not self._paid:  # until the strike: how far RUD and PS left the swing's plane
-            self._off_plane = max(self._off_plane, abs(float(err[0])), abs(float(err[2])))
-        impact = 0.0
-        if self._strike is not None and not self._paid:
-            self._paid = True
-            impact = self._strike[1] / self.cfg["scales"]["speed"] if self.timely() else 0.0
-        last = self._step >= self.episode_steps
-        return {"impact": impact, "miss": -1.0 if last and not self.timely() else 0.0}
+    def off_plane(self) -> float:
+        """The largest RUD or PS error (rad) of the episode's steps so far, up to the strike's."""
+        ep = self._ep
+        return off_plane_errors(ep.history_error[:, :ep.step.item(0)], ep.task.strike_step[0:1]).item(0)
 
-    def _success(self) -> bool:
-        return self.timely() and self._strike[1] >= self.tp["success_speed_ratio"] * self._rigid and \
-            self._strike[2] <= self.tp["success_radius"] and self._off_plane <= self.tp["success_plane_error"]
+    @classmethod
+    def _task_reward_terms_worlds(cls, worlds: list, ep, ids, err) -> dict:
+        terms = at_step(ep, ids, ep.task.reward_terms)
+        return {"impact": terms[:, IMPACT], "miss": terms[:, MISS]}
 
-    def _task_info(self) -> dict:
+    @classmethod
+    def _success_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        tp = worlds[0].tp
+        ts = ep.task
+        err, _, _ = episode_history(ep, ids)
+        return (ts.timely[ids] & (ts.strike_speed[ids] >= tp["success_speed_ratio"] * ts.rigid[ids])
+                & (ts.strike_offset[ids] <= tp["success_radius"])
+                & (off_plane_errors(err, ts.strike_step[ids]) <= tp["success_plane_error"]))
+
+    @classmethod
+    def _task_info_worlds(cls, worlds: list, ep, ids) -> dict:
         # no strike yet: struck False and zeros (no NaN in info: equal episodes must give equal infos)
-        s = getattr(self, "_strike", None)
-        return {"struck": s is not None, "impact_speed": 0.0 if s is None else s[1],
-                "impact_time": 0.0 if s is None else s[0], "impact_offset": 0.0 if s is None else s[2],
-                "rigid_speed": float(getattr(self, "_rigid", 0.0))}
+        ts = ep.task
+        return {"struck": ts.struck[ids], "impact_speed": ts.strike_speed[ids], "impact_time": ts.strike_t[ids],
+                "impact_offset": ts.strike_offset[ids], "rigid_speed": ts.rigid[ids]}
 
     def __setstate__(self, state):
         super().__setstate__(state)
-        if hasattr(self, "_handle"):  # the episode's handle length (the rebuilt model has the nominal one)
+        if self._handle > 0.0:  # the episode's handle length (the rebuilt model has the nominal one; 0: no episode)
             self.model.body_pos[self._head_body] = (self._handle, 0.0, 0.0)
 
-    def _reset_state(self) -> None:
-        super()._reset_state()
-        self._paid = False
-        self._t0 = 0.0
-        self._off_plane = 0.0  # rad, largest RUD or PS error before the strike
+
+def leg_rate(ctrl, rud: float, fe: float) -> float:
+    """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid), from the
+    controller's closed-form J_a (``AnalyticController._q1_ja``; tests/test_hammer.py checks it against central
+    differences of the exact inverse kinematics): the closed form costs about a thirtieth of the two IK solutions
+    a difference needs."""
+    _, Ja = ctrl._q1_ja(rud, fe)
+    return max(abs(Ja[0][1]), abs(Ja[1][1]), abs(Ja[2][1]))
+
+
+def off_plane_errors(err, strike_step) -> np.ndarray:
+    """How far RUD and PS left the swing's plane until the strike (L,) (rad): the largest absolute RUD or PS error
+    of each world's steps, from posture errors ``err`` (L, k, 3) of its steps 1 ... k, up to step ``strike_step``
+    (the strike's, included; 0: no strike, all k). A NaN error counts as none (fmax), and no step as 0."""
+    k = err.shape[1]
+    before = np.arange(k) < np.where(strike_step > 0, strike_step, k)[:, None]
+    return np.fmax.reduce(np.abs(err[..., ::2]), axis=(1, 2), where=before[..., None], initial=0.0)
