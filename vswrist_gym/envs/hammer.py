@@ -44,7 +44,7 @@ import numpy as np
 
 from .base import VSWristEnv
 from .episode import at_step, episode_history, task_field
-from .shared import PeriodMeanForce, add_mocap_box_body, frame_from_z, quat_from_matrix
+from .shared import PeriodMeanForce, add_mocap_box_body, frame_from_z, off_plane, quat_from_matrix
 
 ANVIL_HALF = (0.05, 0.045, 0.008)  # m: along the handle, across the swing plane, thickness (along the normal)
 HEAD_HALF_LENGTH = 0.02            # m, half the head's length along the swing (its axis)
@@ -420,9 +420,7 @@ def leg_rate(ctrl, rud: float, fe: float) -> float:
 
 
 def off_plane_errors(err, strike_step) -> np.ndarray:
-    """How far RUD and PS left the swing's plane until the strike (L,) (rad): the largest absolute RUD or PS error
-    of each world's steps, from posture errors ``err`` (L, k, 3) of its steps 1 ... k, up to step ``strike_step``
-    (the strike's, included; 0: no strike, all k). A NaN error counts as none (fmax), and no step as 0."""
+    """How far RUD and PS left the swing's plane until the strike (L,) (rad), from posture errors ``err`` (L, k, 3)
+    of each world's steps 1 ... k, up to step ``strike_step`` (the strike's, included; 0: no strike, all k)."""
     k = err.shape[1]
-    before = np.arange(k) < np.where(strike_step > 0, strike_step, k)[:, None]
-    return np.fmax.reduce(np.abs(err[..., ::2]), axis=(1, 2), where=before[..., None], initial=0.0)
+    return off_plane(err, np.where(strike_step > 0, strike_step, k))

@@ -245,3 +245,10 @@ class PeriodMeanForce:
         out = self._force_sum / self._force_n
         self._force_sum, self._force_n, self._first_contact = 0.0, 0, None
         return out
+
+
+def off_plane(err, steps) -> np.ndarray:
+    """How far (rad) RUD and PS left a swing's plane: the largest of their absolute errors in the first ``steps``
+    (L,) rows of the worlds' posture errors ``err`` (L, k, 3) (a NaN error counts as none; 0 if no row)."""
+    before = np.arange(err.shape[1]) < steps[:, None]
+    return np.fmax.reduce(np.abs(err[..., ::2]), axis=(1, 2), where=before[..., None], initial=0.0)

@@ -55,6 +55,7 @@ import numpy as np
 from .base import VSWristEnv
 from .episode import at_step, episode_history, task_field
 from .hammer import ramp_through
+from .shared import off_plane
 
 NOMINAL_BALL_MASS = 0.15   # kg, compiled in the model; each episode sets its own mass in place
 HANDLE_START = 0.02        # m, the handle starts this far from the hand along the tool X axis
@@ -357,9 +358,3 @@ class ThrowEnv(VSWristEnv):
         if self._ball_L > 0.0:  # the episode's ball distance (the rebuilt model has the nominal one; 0: none drawn)
             self.model.body_pos[self._ball_body] = (self._ball_L, 0.0, 0.0)
 
-
-def off_plane(err, steps) -> np.ndarray:
-    """How far (rad) RUD and PS left the swing's plane before the release: the largest of their errors in the first
-    ``steps`` (L,) rows of the worlds' posture errors ``err`` (L, k, 3) (a NaN error counts as none; 0 if none)."""
-    before = np.arange(err.shape[1]) < steps[:, None]
-    return np.fmax.reduce(np.abs(err[..., ::2]), axis=(1, 2), where=before[..., None], initial=0.0)
