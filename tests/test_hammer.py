@@ -193,36 +193,65 @@ def test_evaluate_records_the_strike_speed_of_the_last_step():
     assert "impact_speed" not in table_markdown([("a", summarise(other))])
 
 
-def test_swings_integrated_over_arrays_are_the_scalar_swings_to_the_bit():
-    """A batch whose worlds reset together integrates their swing ramps over arrays (``ramp_references``); each
-    world's ramp must be what the single env integrates alone with the same seed, point for point: the batch's
-    worlds and ``gym.make`` replay the same episodes only then. Identical to the bit on the dev machine; the bound
-    is 1e-12 rad because NumPy's sin/cos may differ from math's in the last bit on other CPUs (SIMD builds), and
-    one-ulp differences in the rate, summed over the ramp's ~100-600 points of 1 ms, stay below 1e-13 rad (a
-    margin of 10, as tests/test_control.py allows the controller's array path)."""
-    from vswrist_gym.envs import hammer
+@pytest.mark.parametrize("env_id", ["VSWrist/Hammer-v0", "VSWrist/Hammer-v1", "VSWrist/Throw-v0"])
+def test_swings_integrated_over_arrays_are_the_scalar_swings_to_the_bit(env_id):
+    """A batch whose worlds reset together integrates their swing ramps over arrays (``ramp.ramp_references``,
+    ``ramp_through_worlds``); each world's ramp must be what the single env integrates alone with the same seed,
+    point for point, and what the one-world integration (``ramp_reference``, ``ramp_through``) gives with the
+    task's scalar rate: the batch's worlds and ``gym.make`` replay the same episodes only then. Identical to the bit
+    on the dev machine; the bound is 1e-12 rad because NumPy's sin/cos may differ from math's in the last bit on
+    other CPUs (SIMD builds), and one-ulp differences in the rate, summed over the ramp's ~100-600 points of 1 ms,
+    stay below 1e-13 rad (a margin of 10, as tests/test_control.py allows the controller's array path). The times
+    are sums of dt in either form, so they must agree exactly (a turn's hold starts where the first leg ends)."""
+    from vswrist_gym.envs import ramp
 
-    n = hammer.RAMP_ARRAY_MIN_WORLDS + 3
-    v = gym.make_vec("VSWrist/Hammer-v0", num_envs=n, vectorization_mode="vector_entry_point", threads=1)
+    n = ramp.RAMP_ARRAY_MIN_WORLDS + 3
+    v = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", threads=1)
     v.reset(seed=40)
     worlds = v.unwrapped.envs
     assert len({e._rud for e in worlds}) == n  # distinct swings
+    throw = env_id.startswith("VSWrist/Throw")
     for i, e in enumerate(worlds):
-        alone = gym.make("VSWrist/Hammer-v0").unwrapped
+        alone = gym.make(env_id).unwrapped
         alone.reset(seed=40 + i)
         assert alone._rud == e._rud
-        ts, fes = hammer.ramp_reference(alone.tp["fe_start"], alone.tp["fe_end"], alone._fe_rate,
-                                        alone.tp["swing_start_s"], alone.cfg["episode_s"])
-        for got in ((e._swing_t, e._swing_fe), (alone._swing_t, alone._swing_fe)):
-            assert got[0].shape == ts.shape and np.array_equal(got[0], ts)  # times: the same sums of dt
-            np.testing.assert_allclose(got[1], fes, rtol=0, atol=1e-12)
+        tp = alone.tp
+        if throw:
+            rates = (lambda fe: alone._fe_rate(fe, tp["windup_speed"]), lambda fe: alone._fe_rate(fe, tp["swing_speed"]))
+            want = ramp.ramp_through((tp["fe_start"], tp["fe_back"], tp["fe_end"]), rates, tp["windup_start_s"],
+                                     tp["windup_hold_s"], alone.cfg["episode_s"])
+            got = ((e._ref_t, e._ref_fe), (alone._ref_t, alone._ref_fe))
+        elif alone.windup:
+            rates = (lambda fe: alone._fe_rate(fe, tp["windup_speed"]), alone._fe_rate)
+            want = ramp.ramp_through((tp["fe_start"], tp["fe_back"], tp["fe_end"]), rates, tp["swing_start_s"],
+                                     tp["windup_hold_s"], alone.cfg["episode_s"])
+            got = ((e._swing_t, e._swing_fe), (alone._swing_t, alone._swing_fe))
+        else:
+            want = ramp.ramp_reference(tp["fe_start"], tp["fe_end"], alone._fe_rate, tp["swing_start_s"],
+                                       alone.cfg["episode_s"])
+            got = ((e._swing_t, e._swing_fe), (alone._swing_t, alone._swing_fe))
+        if throw or alone.windup:
+            assert want[1].min() < tp["fe_start"]  # the wind-up turns back before the swing
+        for ts, fes in got:
+            assert ts.shape == want[0].shape and np.array_equal(ts, want[0])
+            np.testing.assert_allclose(fes, want[1], rtol=0, atol=1e-12)
+        assert e._ep.task.swing_t0[0] == alone._ep.task.swing_t0[0]
         alone.close()
-    # a ramp cut by the episode's end: every ramp stops at the same time, where the scalar loop stops
-    short = hammer.ramp_references(-0.75, 0.95, lambda fe, rows: np.full(len(rows), 1.0), 3, 0.05, 0.3)
-    alone = hammer.ramp_reference(-0.75, 0.95, lambda fe: 1.0, 0.05, 0.3)
-    for ts, fes in short:
-        assert np.array_equal(ts, alone[0]) and np.array_equal(fes, alone[1])
     v.close()
+
+
+def test_ramps_over_arrays_stop_where_each_ramp_stops_alone():
+    """``ramp_references`` with a start and an end of its own for each ramp: a ramp cut by its episode's end stops
+    where the one-world loop stops, and one that reaches its target first holds it, each to the bit (a constant
+    rate: the same additions either way)."""
+    from vswrist_gym.envs import ramp
+
+    starts, ends = np.array([0.05, 0.05, 0.2]), np.array([0.3, 2.0, 0.5])
+    ramps = ramp.ramp_references(-0.75, 0.95, lambda fe, rows: np.full(len(rows), 1.0), 3, starts, ends)
+    for (ts, fes), t0, t1 in zip(ramps, starts, ends):
+        alone = ramp.ramp_reference(-0.75, 0.95, lambda fe: 1.0, t0, t1)
+        assert np.array_equal(ts, alone[0]) and np.array_equal(fes, alone[1])
+    assert ramps[0][1][-1] < 0.95 and ramps[1][1][-1] == 0.95  # cut short; reached
 
 
 def test_off_plane_error_is_the_running_maximum_up_to_the_strike():

@@ -1,5 +1,5 @@
 """Where Hammer's single-env time goes: its steps against its resets, and inside a reset the swing reference
-(``envs.hammer.ramp_reference``, integrated at 1 ms with two evaluations of the legs' rate per point).
+(``envs.ramp.ramp_reference``, integrated at 1 ms with two evaluations of the legs' rate per point).
 
 ``python experiments/batched_speed/hammer_reset_cost.py [--steps 1200]``: random actions from a fixed generator, default config
 (60-step episodes), CPU time of this process; run it under ``flock /work/bench.lock`` on a shared machine.
@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 import vswrist_gym  # noqa: F401
-from vswrist_gym.envs import hammer
+from vswrist_gym.envs import ramp as hammer  # the swing ramps (patched below to time them)
 
 
 def main(argv=None) -> None:

@@ -19,7 +19,7 @@ import gymnasium as gym
 import mujoco
 
 import vswrist_gym  # noqa: F401
-from vswrist_gym.envs.hammer import ramp_reference
+from vswrist_gym.envs.ramp import ramp_reference
 
 CONSTANTS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 

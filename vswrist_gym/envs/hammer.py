@@ -44,87 +44,19 @@ import numpy as np
 
 from .base import VSWristEnv
 from .episode import at_step, episode_history, task_field
+from .ramp import fe_rate, leg_rate, swing_ramps
 from .shared import PeriodMeanForce, add_mocap_box_body, frame_from_z, off_plane, quat_from_matrix
 
 ANVIL_HALF = (0.05, 0.045, 0.008)  # m: along the handle, across the swing plane, thickness (along the normal)
 HEAD_HALF_LENGTH = 0.02            # m, half the head's length along the swing (its axis)
 NOMINAL_HEAD_MASS = 0.2            # kg, compiled in the model; each episode sets its own mass in place
 IMPACT, MISS = 0, 1  # the columns of the task's reward terms (``HammerEnv.task_reward_terms``)
-# from this many worlds resetting together a batch integrates their swings over arrays: each step of the ramp then
-# costs two array calls of the kinematics (about 0.15 ms whatever the count) against 2 x 6 us per world one by one
-RAMP_ARRAY_MIN_WORLDS = 8
 
 
 def head_inertia(mass: float, radius: float, half_length: float) -> np.ndarray:
     """Principal inertia (kg m^2) of a solid cylinder of ``mass`` about its centre, axis along local Z."""
     ix = mass * (3.0 * radius ** 2 + (2.0 * half_length) ** 2) / 12.0
     return np.array([ix, ix, 0.5 * mass * radius ** 2])
-
-
-def ramp_reference(fe0: float, fe1: float, rate_of, t_start: float, duration: float, dt: float = 1e-3):
-    """Times (s) and FE (rad) of a ramp from ``fe0`` to ``fe1`` starting at ``t_start`` whose FE rate at each
-    FE is ``rate_of(fe)`` (rad/s, > 0), held at ``fe1`` after; integrated with ``dt``. NumPy arrays, so that a
-    batched core can build one per episode."""
-    ts, fes = [0.0, t_start], [fe0, fe0]
-    t, fe, sign = t_start, fe0, math.copysign(1.0, fe1 - fe0)
-    while (fe1 - fe) * sign > 0.0 and t < duration:
-        # midpoint rule: rate at half a step ahead
-        r = rate_of(fe + 0.5 * dt * sign * rate_of(fe))
-        fe = fe + sign * r * dt
-        if (fe1 - fe) * sign < 0.0:
-            fe = fe1
-        t += dt
-        ts.append(t)
-        fes.append(fe)
-    ts.append(max(duration, t) + dt)
-    fes.append(fes[-1])
-    return np.asarray(ts), np.asarray(fes)
-
-
-def ramp_through(points, rates_of, t_start: float, hold_s: float, duration: float, dt: float = 1e-3):
-    """Times (s) and FE (rad) of a reference through FE ``points[0] -> points[1] -> points[2]``: from ``t_start``
-    to ``points[1]`` at the FE rate ``rates_of[0](fe)``, ``hold_s`` there, then to ``points[2]`` at
-    ``rates_of[1](fe)`` (rad/s, > 0), held after; each leg integrated with the midpoint rule and step ``dt`` as
-    ``ramp_reference``."""
-    t1, f1 = ramp_reference(points[0], points[1], rates_of[0], t_start, duration, dt)
-    # t1[-1] is a hold point one dt past the end of the first leg (or of the episode): drop it
-    t_back = float(t1[-2])
-    t2, f2 = ramp_reference(points[1], points[2], rates_of[1], t_back + hold_s, max(duration, t_back + hold_s), dt)
-    # t2 starts with (0, fe_back): drop it; its next point is (t_back + hold_s, fe_back), the hold's end
-    ts = np.concatenate([t1[:-1], t2[1:]])
-    fes = np.concatenate([f1[:-1], f2[1:]])
-    keep = np.concatenate([[True], np.diff(ts) > 0.0])  # hold_s = 0: the turn's point appears twice
-    return ts[keep], fes[keep]
-
-
-def ramp_references(fe0: float, fe1: float, rates_of, n: int, t_start: float, duration: float,
-                    dt: float = 1e-3) -> list:
-    """``ramp_reference`` of ``n`` ramps at once whose FE rate is ``rates_of(fe, rows)`` ((k,) FE of the ramps
-    ``rows`` -> (k,) rad/s): the same operations element by element, each ramp stopping where it would alone, so
-    each (times, FE) pair is ``ramp_reference``'s to the bit when ``rates_of`` computes as ``rate_of``."""
-    sign = math.copysign(1.0, fe1 - fe0)
-    fe = np.full(n, float(fe0))
-    times, rows_fe = [0.0, t_start], [fe.copy(), fe.copy()]
-    done_at = np.full(n, 1)  # index of each ramp's last point
-    t = t_start
-    active = np.flatnonzero((fe1 - fe) * sign > 0.0) if t < duration else np.zeros(0, dtype=int)
-    while active.size:
-        f = fe[active]
-        r = rates_of(f + 0.5 * dt * sign * rates_of(f, active), active)
-        f = f + sign * r * dt
-        f = np.where((fe1 - f) * sign < 0.0, fe1, f)
-        fe[active] = f
-        t += dt
-        times.append(t)
-        rows_fe.append(fe.copy())
-        done_at[active] = len(times) - 1
-        active = active[(fe1 - f) * sign > 0.0] if t < duration else active[:0]
-    T, F = np.asarray(times), np.asarray(rows_fe)
-    out = []
-    for k in range(n):
-        m = done_at[k]
-        out.append((np.append(T[:m + 1], max(duration, T[m]) + dt), np.append(F[:m + 1, k], F[m, k])))
-    return out
 
 
 class HammerEnv(PeriodMeanForce, VSWristEnv):
@@ -254,51 +186,32 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
 
     @classmethod
     def _reset_worlds(cls, worlds: list) -> None:
-        """The swing's FE ramp of each world (``ramp_reference``): for many worlds at once the same integration
-        over arrays (``ramp_references`` with the controller's kinematics over arrays, which compute as the scalar
-        path), one world's Python loop cost shared by all; a few worlds one by one."""
+        """The swing's FE ramp of each world (``ramp.swing_ramps``: over arrays for many worlds at once), and when
+        its forward swing starts."""
         cls._strike_geometry(worlds)
         first = worlds[0]
         tp = first.tp
+        limit = first.nominal_params.motor.speed_limit
         if first.windup:
-            for e in worlds:
-                e._swing_t, e._swing_fe = ramp_through((tp["fe_start"], tp["fe_back"], tp["fe_end"]),
-                                                       (e._rate_of(tp["windup_speed"]), e._rate_of()),
-                                                       tp["swing_start_s"], tp["windup_hold_s"], e.cfg["episode_s"])
-                # the forward swing starts where the reference leaves fe_back
-                at_back = np.flatnonzero(e._swing_fe <= tp["fe_back"])
-                e._ep.task.put(0, swing_t0=float(e._swing_t[at_back[-1]]) if at_back.size else math.inf)
-            return
-        for e in worlds:
-            e._ep.task.put(0, swing_t0=tp["swing_start_s"])
-        args = (tp["fe_start"], tp["fe_end"])
-        if len(worlds) < RAMP_ARRAY_MIN_WORLDS:
-            for e in worlds:
-                e._swing_t, e._swing_fe = ramp_reference(*args, e._rate_of(), tp["swing_start_s"], e.cfg["episode_s"])
-            return
-        rud = np.array([e._rud for e in worlds])
-        gain = tp["swing_speed"] * first.nominal_params.motor.speed_limit
-        ctrl = first.ctrl  # every world's controller has the nominal parameters
-
-        def rates_of(fe, rows):  # _fe_rate over arrays
-            _, (_, J1), _, _ = ctrl.posture_kinematics_batch(rud[rows], fe, with_q1=False)
-            return gain / np.maximum(np.maximum(np.abs(J1[0]), np.abs(J1[1])), np.abs(J1[2]))
-
-        ramps = ramp_references(*args, rates_of, len(worlds), tp["swing_start_s"], first.cfg["episode_s"])
+            points, speeds = (tp["fe_start"], tp["fe_back"], tp["fe_end"]), (tp["windup_speed"], tp["swing_speed"])
+        else:
+            points, speeds = (tp["fe_start"], tp["fe_end"]), (tp["swing_speed"],)
+        # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+        ramps = swing_ramps(first.ctrl, [e._rud for e in worlds], points, [s * limit for s in speeds],
+                            tp["swing_start_s"], tp["windup_hold_s"], first.cfg["episode_s"])
         for e, (ts, fes) in zip(worlds, ramps):
             e._swing_t, e._swing_fe = ts, fes
+            swing_t0 = tp["swing_start_s"]
+            if first.windup:  # the forward swing starts where the reference leaves fe_back
+                at_back = np.flatnonzero(fes <= tp["fe_back"])
+                swing_t0 = float(ts[at_back[-1]]) if at_back.size else math.inf
+            e._ep.task.put(0, swing_t0=swing_t0)
 
     def _fe_rate(self, fe: float, fraction: float | None = None) -> float:
         """FE rate (rad/s) at which the fastest-turning PM motor runs at ``fraction`` (default ``swing_speed``)
-        x its speed limit."""
-        return self._rate_of(fraction)(fe)
-
-    def _rate_of(self, fraction: float | None = None):
-        """``_fe_rate`` at this episode's RUD as a function of FE, with the RUD and the gain read once: the reset
-        integrates the swing with two of these per millisecond."""
-        gain = (self.tp["swing_speed"] if fraction is None else fraction) * self.nominal_params.motor.speed_limit
-        ctrl, rud = self.ctrl, self._rud
-        return lambda fe: gain / leg_rate(ctrl, rud, fe)
+        x its speed limit (``ramp.fe_rate``)."""
+        speed = (self.tp["swing_speed"] if fraction is None else fraction) * self.nominal_params.motor.speed_limit
+        return fe_rate(self.ctrl, self._rud, speed)(fe)
 
     def _leg_rate(self, fe: float) -> float:
         """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid): ``leg_rate``."""
@@ -408,15 +321,6 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         super().__setstate__(state)
         if self._handle > 0.0:  # the episode's handle length (the rebuilt model has the nominal one; 0: no episode)
             self.model.body_pos[self._head_body] = (self._handle, 0.0, 0.0)
-
-
-def leg_rate(ctrl, rud: float, fe: float) -> float:
-    """max over the legs of |d q1 / d FE| at (rud, fe): motor radians per radian of FE (rigid), from the
-    controller's closed-form J_a (``AnalyticController._q1_ja``; tests/test_hammer.py checks it against central
-    differences of the exact inverse kinematics): the closed form costs about a thirtieth of the two IK solutions
-    a difference needs."""
-    _, Ja = ctrl._q1_ja(rud, fe)
-    return max(abs(Ja[0][1]), abs(Ja[1][1]), abs(Ja[2][1]))
 
 
 def off_plane_errors(err, strike_step) -> np.ndarray:

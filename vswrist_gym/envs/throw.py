@@ -54,7 +54,7 @@ import numpy as np
 
 from .base import VSWristEnv
 from .episode import at_step, episode_history, task_field
-from .hammer import ramp_through
+from .ramp import fe_rate, swing_ramps
 from .shared import off_plane
 
 NOMINAL_BALL_MASS = 0.15   # kg, compiled in the model; each episode sets its own mass in place
@@ -187,27 +187,29 @@ class ThrowEnv(VSWristEnv):
 
     @classmethod
     def _reset_worlds(cls, worlds: list) -> None:
-        """Each world's counter-movement (``ramp_through``) and its release geometry, world by world (a few
-        milliseconds of Python per reset, about a tenth of an episode's physics)."""
-        for e in worlds:
-            tp = e.tp
-            back = lambda fe, e=e: e._fe_rate(fe, tp["windup_speed"])  # noqa: E731
-            fwd = lambda fe, e=e: e._fe_rate(fe, tp["swing_speed"])  # noqa: E731
-            e._ref_t, e._ref_fe = ramp_through((tp["fe_start"], tp["fe_back"], tp["fe_end"]), (back, fwd),
-                                               tp["windup_start_s"], tp["windup_hold_s"], e.cfg["episode_s"])
+        """Each world's counter-movement (``ramp.swing_ramps``: over arrays for many worlds at once) and its release
+        geometry."""
+        first = worlds[0]
+        tp = first.tp
+        limit = first.nominal_params.motor.speed_limit
+        # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+        ramps = swing_ramps(first.ctrl, [e._rud for e in worlds], (tp["fe_start"], tp["fe_back"], tp["fe_end"]),
+                            (tp["windup_speed"] * limit, tp["swing_speed"] * limit), tp["windup_start_s"],
+                            tp["windup_hold_s"], first.cfg["episode_s"])
+        for e, (ts, fes) in zip(worlds, ramps):
+            e._ref_t, e._ref_fe = ts, fes
             # the forward swing starts where the reference leaves fe_back
-            at_back = np.flatnonzero(e._ref_fe <= tp["fe_back"])
-            swing_t0 = float(e._ref_t[at_back[-1]]) if at_back.size else math.inf
+            at_back = np.flatnonzero(fes <= tp["fe_back"])
+            swing_t0 = float(ts[at_back[-1]]) if at_back.size else math.inf
             fe = e._fe_release
             rigid, d, c = e._swing_geometry(fe)
             n = np.cross(d, e._swing_geometry(fe + 0.1)[1])
             e._ep.task.put(0, swing_t0=swing_t0, rigid=rigid, dir=d, c=c, normal=n / np.linalg.norm(n))
 
     def _fe_rate(self, fe: float, fraction: float) -> float:
-        """FE rate (rad/s) at which the fastest-turning PM motor runs at ``fraction`` x its speed limit."""
-        _, Ja = self.ctrl._q1_ja(self._rud, fe)
-        lever = max(abs(Ja[0][1]), abs(Ja[1][1]), abs(Ja[2][1]))
-        return fraction * self.nominal_params.motor.speed_limit / lever
+        """FE rate (rad/s) at which the fastest-turning PM motor runs at ``fraction`` x its speed limit
+        (``ramp.fe_rate``)."""
+        return fe_rate(self.ctrl, self._rud, fraction * self.nominal_params.motor.speed_limit)(fe)
 
     def _swing_geometry(self, fe: float) -> tuple[float, np.ndarray, np.ndarray]:
         """At FE ``fe`` (this episode's RUD, PS and ball), rigid: the rigid bound (m/s: the ball's speed when the
