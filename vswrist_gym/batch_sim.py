@@ -8,9 +8,10 @@ loop-closure bodies, the tool's sensors). Those belong to the simulator layer; t
 through this interface only.
 
 The reads compute what ``WristSim.posture``/``deflections``/``posture_rate``/``loop_closure_peak``/
-``tool_wrench`` compute, through the same functions (``sim.coupler_angles``, ``sim.posture_rate_terms``,
-``sim.tool_wrench_of``, ``native.weld_opening``) over arrays of worlds, so that world i of a batch is the single
-env on one machine.
+``tool_wrench`` compute, through the same functions (``sim.posture_rate_terms``, ``sim.tool_wrench_of``,
+``native.weld_opening``) over arrays of worlds, and the coupler's angles (``sim.coupler_angles``) world by world in
+the gather (in C, with the same C library functions, by the compiled advance), so that world i of a batch is the
+single env on one machine.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ def gather_plan(sim: WristSim, light: bool, tool_wrench: bool) -> tuple[np.ndarr
         cols[name] = slice(c, c + count)
 
     add("qpos", A.F_QPOS, 0, sim.model.nq)
-    add("coupler_xmat", A.F_XMAT, 9 * sim.coupler_id, 9)
+    add("coupler_angles", A.F_ANGLES, 9 * sim.coupler_id, 2)
     add("coupler_cvel", A.F_CVEL, 6 * sim.coupler_id, 6)
     add("ps_rate", A.F_QVEL, sim._vadr_ps, 1)
     add("peak", A.F_PEAK, 0, 1)
@@ -169,6 +170,7 @@ class BatchSim:
         G = np.empty((len(sims), self.width))
         for k, s in enumerate(sims):
             parts = [s._closure_peak if f == A.F_PEAK
+                     else coupler_angles(*s.data.xmat.reshape(-1)[a:a + 9:3].tolist()) if f == A.F_ANGLES
                      else getattr(s.data, GATHER_FIELDS[f]).reshape(-1)[a:a + n] for f, a, n in self.plan.tolist()]
             G[k] = np.concatenate(parts)
         return G
@@ -182,9 +184,8 @@ class BatchSim:
         the joint positions they come from (N, nq)."""
         ps, q1, m3, _ = self._qadr
         Q = G[:, self.cols["qpos"]]
-        X = G[:, self.cols["coupler_xmat"]]
         P = np.empty((len(G), 3))
-        P[:, :2] = [coupler_angles(r0, r3, r6) for r0, r3, r6 in X[:, [0, 3, 6]].tolist()]
+        P[:, :2] = G[:, self.cols["coupler_angles"]]  # computed in the gather
         P[:, 2] = Q[:, ps]
         return P, Q[:, q1] - Q[:, m3], Q
 

@@ -57,9 +57,9 @@ DIVERGED_MESSAGE = ("MuJoCo reported NaN or huge positions/velocities/accelerati
 
 def coupler_angles(r0: float, r3: float, r6: float) -> tuple[float, float]:
     """The measured RUD and FE (rad): ZYX Euler angles alpha_y, alpha_z of the coupler, from its rotation matrix's
-    entries R[0, 0], R[1, 0], R[2, 0] (``r0``, ``r3``, ``r6`` of ``xmat``). One world's numbers: a batch maps it
-    over its worlds (``batch_sim.BatchSim.read_posture``), since NumPy's arcsin and arctan2 may differ from
-    math's in the last bit."""
+    entries R[0, 0], R[1, 0], R[2, 0] (``r0``, ``r3``, ``r6`` of ``xmat``). One world's numbers: a batch's
+    compiled advance computes them in C as its gather (``advance_lib.F_ANGLES``, with the C library's asin and
+    atan2, which ``math`` calls), since NumPy's arcsin and arctan2 may differ from math's in the last bit."""
     return math.asin(max(-1.0, min(1.0, -r6))), math.atan2(r3, r0)
 
 

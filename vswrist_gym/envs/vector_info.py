@@ -31,7 +31,11 @@ class VectorInfoMixin:
         if not cols and not extras and len(rows) == n:  # world by world: stack the worlds' dicts
             return self._merge_infos([rows[i] for i in range(n)])
         out: dict[str, Any] = {}
-        if cols:
+        if cols and not rows and len(idx) == n:  # every world stepped, none reset: the columns are whole already
+            for key, v in cols.items():
+                out[key] = v.copy()  # each key its own array, as below
+                out[f"_{key}"] = np.ones(n, dtype=bool)
+        elif cols:
             mask = np.zeros(n, dtype=bool)
             mask[idx] = True
             if rows:

@@ -49,8 +49,10 @@ OK, DIVERGED, MUJOCO_ERROR = 0, 1, 2
 SYNC_NONE, SYNC_KINEMATICS, SYNC_FORWARD = 0, 1, 2
 
 # what a gather plan (``plan``: rows of (field, start, count)) copies from each synced world into its row of ``out``:
-# MjData arrays (flattened: xpos[b] starts at 3 b) and the loop-closure peak (start and count 0, 1)
-F_QPOS, F_QVEL, F_XPOS, F_XQUAT, F_XMAT, F_CVEL, F_SENSOR, F_SITE_XMAT, F_PEAK = range(9)
+# MjData arrays (flattened: xpos[b] starts at 3 b), the loop-closure peak (start and count 0, 1) and the coupler's
+# measured RUD and FE (``sim.coupler_angles`` of the rotation matrix at xmat[start:start + 9]; count 2): computed on
+# the physics threads with the C library's asin and atan2, which Python's ``math`` calls too
+F_QPOS, F_QVEL, F_XPOS, F_XQUAT, F_XMAT, F_CVEL, F_SENSOR, F_SITE_XMAT, F_PEAK, F_ANGLES = range(10)
 
 SOURCE = CSRC / "vswrist_advance.cc"
 
@@ -61,7 +63,7 @@ def advance_defines() -> dict[str, str]:
              "H_METER": H_METER, "H_METER_SIZE": H_METER_SIZE, "H_LATENCY": H_LATENCY, "OK": OK, "DIVERGED": DIVERGED,
              "MUJOCO_ERROR": MUJOCO_ERROR, "SYNC_KINEMATICS": SYNC_KINEMATICS, "SYNC_FORWARD": SYNC_FORWARD,
              "F_QPOS": F_QPOS, "F_QVEL": F_QVEL, "F_XPOS": F_XPOS, "F_XQUAT": F_XQUAT, "F_XMAT": F_XMAT,
-             "F_CVEL": F_CVEL, "F_SENSOR": F_SENSOR, "F_SITE_XMAT": F_SITE_XMAT}
+             "F_CVEL": F_CVEL, "F_SENSOR": F_SENSOR, "F_SITE_XMAT": F_SITE_XMAT, "F_ANGLES": F_ANGLES}
     return {f"VSWRIST_{k}": str(v) for k, v in names.items()}
 
 

@@ -61,6 +61,10 @@
 #ifndef VSWRIST_F_SITE_XMAT
 #error "VSWRIST_F_SITE_XMAT (gather field) is not defined: compile this file through vswrist_gym.model.advance_lib"
 #endif
+#ifndef VSWRIST_F_ANGLES
+#error "VSWRIST_F_ANGLES (gather field) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#include <math.h>
 #include <stdint.h>
 #include <string.h>
 #include <time.h>
@@ -95,6 +99,18 @@ static double thread_seconds(void) {
 static void gather(const mjData* d, const uint64_t* row, const int32_t* plan, int nplan, double* out) {
   for (int p = 0; p < nplan; p++) {
     const int32_t f = plan[3 * p], start = plan[3 * p + 1], n = plan[3 * p + 2];
+    if (f == VSWRIST_F_ANGLES) {
+      /* the coupler's RUD and FE (sim.coupler_angles): asin of -R[2, 0] clamped as Python's max(-1, min(1, .)),
+         atan2(R[1, 0], R[0, 0]) */
+      const mjtNum* R = d->xmat + start;
+      double s = -R[6];
+      s = s < 1.0 ? s : 1.0;
+      s = s > -1.0 ? s : -1.0;
+      out[0] = asin(s);
+      out[1] = atan2(R[3], R[0]);
+      out += 2;
+      continue;
+    }
     const mjtNum* src = f == VSWRIST_F_QPOS ? d->qpos : f == VSWRIST_F_QVEL ? d->qvel : f == VSWRIST_F_XPOS ? d->xpos
                       : f == VSWRIST_F_XQUAT ? d->xquat : f == VSWRIST_F_XMAT ? d->xmat : f == VSWRIST_F_CVEL ? d->cvel
                       : f == VSWRIST_F_SENSOR ? d->sensordata : f == VSWRIST_F_SITE_XMAT ? d->site_xmat
