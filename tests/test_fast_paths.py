@@ -78,6 +78,20 @@ def test_sum_of_squares_adds_in_order_for_one_world_and_a_batch():
                                                                                    per_spring]
 
 
+def test_squared_norms_of_a_batch_are_each_worlds_dot_product():
+    """The posture error's squared norm over a batch's rows (``squared_norms``: ``np.vecdot``) is each row's own
+    ``e @ e`` as the single env computes it, to the bit: NumPy runs the same dot product (its BLAS kernel, whose
+    order and rounding an in-order sum may miss by an ulp) row by row. Rows of 1-6 entries, scales over 12
+    decades, and an empty batch."""
+    from vswrist_gym.envs.rewards import squared_norms
+    rng = np.random.default_rng(5)
+    for n in range(1, 7):
+        E = rng.normal(size=(300, n)) * 10.0 ** rng.integers(-6, 6, size=(300, 1))
+        np.testing.assert_array_equal(squared_norms(E), [e @ e for e in E])
+        assert all(squared_norms(e) == e @ e for e in E[:20])
+    assert squared_norms(np.zeros((0, 3))).shape == (0,)
+
+
 def test_observed_stiffness_equals_the_papers_formula_from_kinematics_at():
     env = gym.make("VSWrist/LoadHold-v0")
     u = env.unwrapped

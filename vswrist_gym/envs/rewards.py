@@ -50,9 +50,9 @@ def weigh(raw: dict, weights: dict) -> tuple[dict, np.ndarray | float]:
 
 
 def squared_norms(err: np.ndarray):
-    """err . err of each world: one dot product per world (BLAS's order and rounding, which an in-order sum of
-    squares may miss by an ulp)."""
-    return err @ err if err.ndim == 1 else np.array([e @ e for e in err])
+    """err . err of each world (..., k): NumPy's dot product (its BLAS kernel's order and rounding, which an in-order
+    sum of squares may miss by an ulp), which ``vecdot`` runs row by row as ``@`` runs it on one row."""
+    return err @ err if err.ndim == 1 else np.vecdot(err, err)
 
 
 def step_metrics(err, contact, peak_contact, sum_contact_sq, step, energy, lam, closure, closure_warn, time,
