@@ -102,10 +102,11 @@ class PolishEnv(PeriodMeanForce, VSWristEnv):
     def task_id(self) -> str:
         return CONTACT_FORCE_IDS[self.tp["contact_force"]]
 
-    def _contact_force(self) -> float:
-        mean = super()._contact_force()  # the period's mean; restarts its sums either way
-        if self.tp["contact_force"] == "last_substep":
-            return self._last_substep_force()
+    @classmethod
+    def _contact_force_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        mean = super()._contact_force_worlds(worlds, ep, ids)  # the period's mean; restarts its sums either way
+        if worlds[0].tp["contact_force"] == "last_substep":
+            return np.array([e._last_substep_force() for e in worlds], dtype=float)
         return mean
 
     def _task_reset(self, rng):

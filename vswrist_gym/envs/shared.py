@@ -158,7 +158,7 @@ class PeriodMeanForce:
     The task calls ``_add_contact_meter(spec, body, geom1, geom2)`` in ``_scene`` and ``_find_contact_meter()``
     in ``_scene_ids``, and sets ``self._touch_adr`` (the touch sensor read at reset, before any period ran);
     ``_on_first_contact(time, pos, vel)`` sees each period's first counted contact, when the period's force is read
-    (``_contact_force``: in the step's measures, after its clock advanced), with either physics.
+    (``_contact_force_worlds``: in the step's measures, after its clock advanced), with either physics.
     ``_last_substep_force()`` is the other reading, the touch sensor at the end of the period."""
 
     _meter_names: tuple = ()
@@ -225,19 +225,29 @@ class PeriodMeanForce:
         """The touch sensor's reading (N) at the state the physics stands in (sensors are current after a step)."""
         return float(self.data.sensordata[self._touch_adr])
 
-    def _contact_force(self) -> float:
-        """Mean normal force (N) over the last control period's substeps (at reset, where no period has run: the
-        touch sensor's reading). Reads and clears the period's measurements."""
-        meter = self._meter
-        if meter is not None:
-            if not self._period_ran or meter[1] == 0.0:
-                return self._last_substep_force()
-            self._period_ran = False
-            if meter[2] != 0.0:
-                self._on_first_contact(float(meter[3]), meter[4:7].copy(), meter[7:10].copy())
-            out = float(meter[0]) / float(meter[1])
-            meter[:] = 0.0
-            return out
+    @classmethod
+    def _contact_force_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        """Mean normal force (N) over the last control period's substeps of each world (at reset, where no period
+        has run: the touch sensor's reading). Reads and clears the period's measurements: the compiled meters' states
+        as one (L, .) array, the reference physics' sums world by world."""
+        if worlds[0]._meter is None:
+            return np.array([e._reference_period_force() for e in worlds], dtype=float)
+        M = np.array([e._meter for e in worlds])
+        read = np.array([e._period_ran for e in worlds]) & (M[:, 1] != 0.0)
+        out = np.empty(len(worlds))
+        for k in np.flatnonzero(~read).tolist():
+            out[k] = worlds[k]._last_substep_force()
+        for k in np.flatnonzero(read).tolist():
+            e = worlds[k]
+            e._period_ran = False
+            if M[k, 2] != 0.0:
+                e._on_first_contact(float(M[k, 3]), M[k, 4:7].copy(), M[k, 7:10].copy())
+            e._meter[:] = 0.0
+        out[read] = M[read, 0] / M[read, 1]
+        return out
+
+    def _reference_period_force(self) -> float:
+        """``_contact_force_worlds`` of one world under the reference physics (no plugin): from its period's sums."""
         if self._force_n == 0:
             return self._last_substep_force()
         if self._first_contact is not None:
@@ -245,7 +255,6 @@ class PeriodMeanForce:
         out = self._force_sum / self._force_n
         self._force_sum, self._force_n, self._first_contact = 0.0, 0, None
         return out
-
 
 def off_plane(err, steps) -> np.ndarray:
     """How far (rad) RUD and PS left a swing's plane: the largest of their absolute errors in the first ``steps``
