@@ -202,3 +202,48 @@ def test_bad_counter_movement_is_refused():
 
     with pytest.raises(EnvConfigError, match="'task.fe_back' < 'task.fe_start'"):
         gym.make(ID, config={"task": {"fe_back": 0.5}})
+
+
+@pytest.mark.parametrize("threads, latency", [(1, False), (2, False), (2, True)])
+def test_a_batch_follows_whole_throws_as_the_single_env(threads, latency, monkeypatch):
+    """A batch advances Throw's plain periods (before the forward swing, with the ball far from the release plane,
+    after the release) through the compiled advance and the release search world by world
+    (``_plain_periods_worlds``, ``batch_physics._mixed_physics``): world i must replay ``gym.make`` with seed
+    s + i through whole episodes, releases included, on one thread and on two (the compiled advance on the
+    library's thread while this one searches). Random stiffness on the stiffness track, so that the worlds reach
+    the release plane at different steps: some steps mix the two kinds of periods, others do not. With actuation
+    latency (each period's first substeps on the previous references) too."""
+    from vswrist_gym.envs.batch_physics import PhysicsMixin
+
+    mixed = []
+    plain_mixed = PhysicsMixin._mixed_physics
+
+    def counted(self, worlds, idx, plain):
+        mixed.append(int(plain.sum()))
+        return plain_mixed(self, worlds, idx, plain)
+
+    monkeypatch.setattr(PhysicsMixin, "_mixed_physics", counted)
+    cfg = {"action_mode": "residual", "residual": {"posture_scale": 0.0, "stiffness_scale": 2.0},
+           "randomize": {"latency": {"enabled": latency}}}
+    n = 5
+    venv = gym.make_vec(ID, num_envs=n, vectorization_mode="vector_entry_point", threads=threads, config=cfg)
+    singles = [gym.make(ID, config=cfg) for _ in range(n)]
+    obs, _ = venv.reset(seed=70)
+    for i, e in enumerate(singles):
+        np.testing.assert_allclose(obs[i], e.reset(seed=70 + i)[0], rtol=0, atol=1e-9)
+    steps = singles[0].unwrapped.episode_steps
+    rng = np.random.default_rng(7)
+    released = np.zeros(n, dtype=bool)
+    for t in range(steps):
+        A = rng.uniform(-1, 1, (n,) + venv.single_action_space.shape).astype(np.float32)
+        vo, vr, vte, vtr, vinfo = venv.step(A)
+        for i, e in enumerate(singles):
+            o, r, te, tr, info = e.step(A[i])
+            np.testing.assert_allclose(vo[i], o, rtol=0, atol=1e-9, err_msg=f"step {t} world {i}")
+            assert vr[i] == pytest.approx(r, abs=1e-9) and (vte[i], vtr[i]) == (te, tr)
+            assert vinfo["release_speed"][i] == pytest.approx(info["release_speed"], abs=1e-9)
+            released[i] |= info["released"]
+    assert released.all()  # every world threw
+    assert mixed and any(0 < p < n for p in mixed)  # steps that mixed the compiled and the Python periods
+    assert len(mixed) < steps  # and steps whose periods were all plain, in one compiled call
+    venv.close()

@@ -120,6 +120,16 @@ class TaskHooks:
         extra = [e._task_info() for e in worlds]
         return {key: np.array([x[key] for x in extra]) for key in extra[0]}
 
+    @classmethod
+    def _plain_periods_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        """For a task whose physics is its own (``_advance_physics``) only in some periods: which of ``worlds`` run
+        the coming period as the base's physics (L,) bool, which a batch then advances in one compiled call (the
+        others world by world through ``_advance``); evaluated at the period's start, after the actions are
+        checked, before any physics. A task writes it only where those periods give what its
+        ``_advance_physics`` gives, to the bit (Throw: outside the release search). The default, never called:
+        none."""
+        return np.zeros(len(worlds), dtype=bool)
+
     def _success(self) -> bool:
         """Whether the episode succeeded (decided at its last step, from its history and the task's state)."""
         if over_arrays(type(self), "_success_worlds"):

@@ -36,10 +36,10 @@ x the rigid bound, aimed within ``success_aim_error`` of the swing's plane, RUD 
 ``success_plane_error`` of the swing's until the release: a throw, not a flail.
 
 Cost: until the release is near (the ball within ``RELEASE_REACH`` of the plane in the forward swing) and after it,
-a control period is one ``mj_step`` call; in between it runs substep by substep to find the release to the
-millisecond, so a batch steps these worlds world by world on its threads (``batch.VSWristVectorEnv``: the compiled
-advance needs the base's ``_advance_physics``), each writing the release into its row of the task state
-(``task_state``). The reward terms, info, success and the ``released`` observation term are written over arrays of
+a control period is one ``mj_step`` call (``_plain_period``), which a batch runs through its compiled advance; in
+between it runs substep by substep to find the release to the millisecond, world by world
+(``_plain_periods_worlds`` tells a batch which worlds' periods are which; ``batch_physics._mixed_physics``), each
+writing the release into its row of the task state (``task_state``). The reward terms, info, success and the ``released`` observation term are written over arrays of
 worlds (``hooks``): a batch computes them once for all its worlds. The reward terms are a table over the episode's
 control steps, written at reset and by the release, so that a step reads its row; the RUD and PS errors before the
 release come from the episode's posture-error history at its end.
@@ -53,7 +53,7 @@ import mujoco
 import numpy as np
 
 from .base import VSWristEnv
-from .episode import at_step, episode_history, task_field
+from .episode import at_step, episode_history, held_substeps, task_field
 from .ramp import fe_rate, swing_ramps
 from .shared import off_plane
 
@@ -239,28 +239,42 @@ class ThrowEnv(VSWristEnv):
         and ``direction`` are this world's ``c`` and ``dir`` (rows of the task state)."""
         return float((c - self.data.xpos[self._ball_body]) @ direction)
 
-    def _advance_physics(self, duration: float, first: bool) -> None:
+    def _plain_period(self, look: bool = True) -> bool:
+        """Whether the coming period (or part of one) is plain physics, one ``mj_step`` call: after the release
+        (once the ball's mass has gone), before the forward swing, or (``look``) while the ball is farther than
+        ``RELEASE_REACH`` behind the release plane at the period's start, where it arms the release once it sees
+        the ball behind the plane (the wind-up may start past it, and a soft wrist may lag the wind-up's turn). A
+        batch asks it of each world before the physics (``_plain_periods_worlds``), this world's physics again."""
         st = self._ep.task
         released = st.released.item(0)
         if released and not st.mass_due.item(0):
-            self.sim.step(duration, restart_peak=first)
-            return
-        # the release waits for the forward swing (nothing of it has happened before), and for the ball to be
-        # behind the plane (the wind-up may start past it, and a soft wrist may lag the wind-up's turn)
-        if self._t < st.swing_t0.item(0) - 1e-9:
-            self.sim.step(duration, restart_peak=first)
-            return
-        due, armed, passed = st.mass_due.item(0), st.armed.item(0), st.passed.item(0)
-        c, direction = st.c[0], st.dir[0]
-        if not released and not passed:
+            return True
+        if self._t < st.swing_t0.item(0) - 1e-9:  # nothing of the release happens before the forward swing
+            return True
+        if look and not released and not st.passed.item(0):
             self.sim.sync_kinematics()  # xpos of the state this period starts from
-            behind = self._behind(c, direction)
-            if not armed and behind > 0.0:
-                armed = True
+            behind = self._behind(st.c[0], st.dir[0])
+            if not st.armed.item(0) and behind > 0.0:
                 st.armed[0] = True
             if behind > RELEASE_REACH:
-                self.sim.step(duration, restart_peak=first)
-                return
+                return True
+        return False
+
+    @classmethod
+    def _plain_periods_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        # with actuation latency the period runs in two parts, and the ball may come within reach in the first:
+        # only what holds for the whole period (after the release, before the swing) makes such a period plain
+        held = held_substeps(ep.latency[ids], ep.step[ids]).tolist()
+        return np.array([e._plain_period(look=h == 0) for e, h in zip(worlds, held)], dtype=bool)
+
+    def _advance_physics(self, duration: float, first: bool) -> None:
+        if self._plain_period():
+            self.sim.step(duration, restart_peak=first)
+            return
+        st = self._ep.task
+        released, due, armed, passed = (st.released.item(0), st.mass_due.item(0), st.armed.item(0),
+                                        st.passed.item(0))
+        c, direction = st.c[0], st.dir[0]
         # substep by substep: arm, pass the plane, release at the speed's peak. After mj_step(m, d, 1), xpos and
         # the body velocities are those of the state the substep started from
         d = self.data
