@@ -28,9 +28,10 @@ from .episode import held_substeps
 # chunks of worlds per physics thread in a step (``VSWristVectorEnv._native_step``), each of at least
 # MIN_CHUNK_WORLDS worlds: more chunks balance the threads better and shorten the last chunk, whose
 # ``_finish`` no physics overlaps; fewer make the first chunk, whose ``_begin`` no physics overlaps, longer to
-# compute beside
-CHUNKS_PER_THREAD = 4
-MIN_CHUNK_WORLDS = 4
+# compute beside. 16 chunks on 2 threads stepped 32 and 64 worlds 4-8 % faster than 8 on the 2-core dev machine
+# (``experiments/batched_speed/chunk_count.py``; Hammer's 32 worlds as fast)
+CHUNKS_PER_THREAD = 8
+MIN_CHUNK_WORLDS = 2
 
 
 class PhysicsMixin:
