@@ -229,22 +229,21 @@ class PeriodMeanForce:
     def _contact_force_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
         """Mean normal force (N) over the last control period's substeps of each world (at reset, where no period
         has run: the touch sensor's reading). Reads and clears the period's measurements: the compiled meters' states
-        as one (L, .) array, the reference physics' sums world by world."""
+        copied out at once, then each world's numbers as Python floats (a batch of one, the single env, pays no array
+        calls beyond the copy); the reference physics' sums world by world."""
         if worlds[0]._meter is None:
             return np.array([e._reference_period_force() for e in worlds], dtype=float)
-        M = np.array([e._meter for e in worlds])
-        read = np.array([e._period_ran for e in worlds]) & (M[:, 1] != 0.0)
-        out = np.empty(len(worlds))
-        for k in np.flatnonzero(~read).tolist():
-            out[k] = worlds[k]._last_substep_force()
-        for k in np.flatnonzero(read).tolist():
-            e = worlds[k]
+        out = []
+        for e, m in zip(worlds, np.array([e._meter for e in worlds]).tolist()):
+            if not e._period_ran or m[1] == 0.0:
+                out.append(e._last_substep_force())
+                continue
             e._period_ran = False
-            if M[k, 2] != 0.0:
-                e._on_first_contact(float(M[k, 3]), M[k, 4:7].copy(), M[k, 7:10].copy())
+            if m[2] != 0.0:
+                e._on_first_contact(m[3], np.array(m[4:7]), np.array(m[7:10]))
             e._meter[:] = 0.0
-        out[read] = M[read, 0] / M[read, 1]
-        return out
+            out.append(m[0] / m[1])
+        return np.array(out, dtype=float)
 
     def _reference_period_force(self) -> float:
         """``_contact_force_worlds`` of one world under the reference physics (no plugin): from its period's sums."""
