@@ -56,8 +56,8 @@ def test_batched_world_i_is_the_single_env_with_seed_s_plus_i(env_id, policy, la
 
         cls = type(venv.unwrapped.envs[0])
         own = cls._advance_physics not in (VSWristEnv._advance_physics, PeriodMeanForce._advance_physics)
-        partly = own and over_arrays(cls, "_plain_periods_worlds")  # Throw: its own physics near the release only
-        assert (venv.unwrapped.batch_sim.lib is not None) == (advance_lib.load() is not None and (not own or partly))
+        watched = own and over_arrays(cls, "_watch_worlds")  # Throw: its release search runs in the compiled watch
+        assert (venv.unwrapped.batch_sim.lib is not None) == (advance_lib.load() is not None and (not own or watched))
         singles = [gym.make(env_id, config=cfg) for _ in range(N)]
         rng = np.random.default_rng(seed)
         obs, vinfo = venv.reset(seed=seed)

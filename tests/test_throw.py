@@ -206,23 +206,29 @@ def test_bad_counter_movement_is_refused():
 
 @pytest.mark.parametrize("threads, latency", [(1, False), (2, False), (2, True)])
 def test_a_batch_follows_whole_throws_as_the_single_env(threads, latency, monkeypatch):
-    """A batch advances Throw's plain periods (before the forward swing, with the ball far from the release plane,
-    after the release) through the compiled advance and the release search world by world
-    (``_plain_periods_worlds``, ``batch_physics._mixed_physics``): world i must replay ``gym.make`` with seed
-    s + i through whole episodes, releases included, on one thread and on two (the compiled advance on the
-    library's thread while this one searches). Random stiffness on the stiffness track, so that the worlds reach
-    the release plane at different steps: some steps mix the two kinds of periods, others do not. With actuation
-    latency (each period's first substeps on the previous references) too."""
-    from vswrist_gym.envs.batch_physics import PhysicsMixin
+    """A batch runs Throw's whole periods through the compiled advance, the release search to the substep included
+    (the release watch, ``_watch_worlds``), where the single env searches in Python (``_advance_physics``): world i
+    must replay ``gym.make`` with seed s + i through whole episodes, releases included, on one thread and on two.
+    Random stiffness on the stiffness track, so that the worlds reach the release plane at different steps. With
+    actuation latency (each period's first substeps on the previous references, and a look at the plane before
+    each part) too."""
+    from vswrist_gym.envs.throw import ThrowEnv
 
-    mixed = []
-    plain_mixed = PhysicsMixin._mixed_physics
+    python_search = []  # the worlds whose physics ran ThrowEnv._advance_physics
+    watched = []  # releases the compiled watch found
+    search, after = ThrowEnv._advance_physics, ThrowEnv._after_watch_worlds.__func__
 
-    def counted(self, worlds, idx, plain):
-        mixed.append(int(plain.sum()))
-        return plain_mixed(self, worlds, idx, plain)
+    def counted_search(self, duration, first):
+        python_search.append(id(self))
+        return search(self, duration, first)
 
-    monkeypatch.setattr(PhysicsMixin, "_mixed_physics", counted)
+    def counted_after(cls, worlds, ep, ids, rows):
+        before = ep.task.released[ids].copy()
+        after(cls, worlds, ep, ids, rows)
+        watched.extend((ep.task.released[ids] & ~before).tolist())
+
+    monkeypatch.setattr(ThrowEnv, "_advance_physics", counted_search)
+    monkeypatch.setattr(ThrowEnv, "_after_watch_worlds", classmethod(counted_after))
     cfg = {"action_mode": "residual", "residual": {"posture_scale": 0.0, "stiffness_scale": 2.0},
            "randomize": {"latency": {"enabled": latency}}}
     n = 5
@@ -244,6 +250,7 @@ def test_a_batch_follows_whole_throws_as_the_single_env(threads, latency, monkey
             assert vinfo["release_speed"][i] == pytest.approx(info["release_speed"], abs=1e-9)
             released[i] |= info["released"]
     assert released.all()  # every world threw
-    assert mixed and any(0 < p < n for p in mixed)  # steps that mixed the compiled and the Python periods
-    assert len(mixed) < steps  # and steps whose periods were all plain, in one compiled call
+    assert sum(watched) == n  # each world's release found by the compiled watch
+    batch_worlds = {id(e) for e in venv.envs}
+    assert not batch_worlds & set(python_search)  # and none by the Python search
     venv.close()

@@ -60,16 +60,42 @@ def gather_plan(sim: WristSim, light: bool, tool_wrench: bool) -> tuple[np.ndarr
     return np.array(rows, dtype=np.int32).reshape(-1, 3), cols
 
 
+def watch_rows(c, direction, armed, passed, released, due, peak_time, peak_speed, peak_vel, active, body: int,
+               mass_gone: float, inertia_gone: float, reach: float) -> np.ndarray:
+    """Rows (L, ``WATCH_SIZE``) of L worlds' release watches (the layout in ``advance_lib``): the plane's point
+    and normal (L, 3), the flags and the peak so far (L,) and (L, 3), active (L,) bool, and what every world
+    shares (the ball's body id, its mass and inertia once gone, the reach)."""
+    W = np.empty((len(active), A.WATCH_SIZE))
+    W[:, A.W_C:A.W_C + 3] = c
+    W[:, A.W_DIR:A.W_DIR + 3] = direction
+    W[:, A.W_ARMED], W[:, A.W_PASSED], W[:, A.W_RELEASED], W[:, A.W_DUE] = armed, passed, released, due
+    W[:, A.W_PEAK_TIME], W[:, A.W_PEAK_SPEED] = peak_time, peak_speed
+    W[:, A.W_PEAK_VEL:A.W_PEAK_VEL + 3] = peak_vel
+    W[:, A.W_ACTIVE] = active
+    W[:, A.W_BODY], W[:, A.W_MASS_GONE], W[:, A.W_INERTIA_GONE], W[:, A.W_REACH] = body, mass_gone, inertia_gone, reach
+    return W
+
+
+def read_watch(W: np.ndarray) -> dict[str, np.ndarray]:
+    """What the compiled advance leaves in release watches' rows ``W`` (L, ``WATCH_SIZE``): the flags (L,) bool and
+    the peak so far."""
+    flags = W[:, [A.W_ARMED, A.W_PASSED, A.W_RELEASED, A.W_DUE]] != 0.0
+    return {"armed": flags[:, 0], "passed": flags[:, 1], "released": flags[:, 2], "due": flags[:, 3],
+            "peak_time": W[:, A.W_PEAK_TIME], "peak_speed": W[:, A.W_PEAK_SPEED],
+            "peak_vel": W[:, A.W_PEAK_VEL:A.W_PEAK_VEL + 3]}
+
+
 class BatchSim:
     """``n`` worlds' simulators, stepped one control period (``ctrl_dt``) at a time. ``first``: world 0's
     simulator (every world has the same layout; randomisation may rebuild a world's model, not change it).
     ``compiled``: use the compiled advance where it can be built (``lib`` is None otherwise, and the caller
     steps each world through its ``WristSim``). ``light``: after a period, sync kinematics only (else
     ``mj_forward`` with the sensors). ``meter``: the worlds carry a contact meter (``sim.add_contact_meter``)
-    whose window each period restarts."""
+    whose window each period restarts. ``watch``: each world has a release watch (``watch``, (n, ``WATCH_SIZE``),
+    rows written by ``watch_rows`` before a period and read by ``read_watch`` after it)."""
 
     def __init__(self, n: int, first: WristSim, ctrl_dt: float, light: bool, tool_wrench: bool, meter: bool,
-                 compiled: bool = True):
+                 compiled: bool = True, watch: bool = False):
         self.n = n
         self.compiled = bool(compiled)
         self.lib = A.load() if self.compiled else None
@@ -79,6 +105,7 @@ class BatchSim:
         self.ctrl_idx = np.asarray(first._act_ids, dtype=np.int32)
         self.meter = bool(meter)
         self.handles = np.zeros((n, A.HANDLE_COLUMNS), dtype=np.uint64)
+        self.watch = np.zeros((n, A.WATCH_SIZE)) if watch else None
         self.sims: list = [None] * n  # the simulator each handle row was written for
         self.blocked = np.zeros(n, dtype=bool)  # worlds the compiled advance cannot step
         self.plan, self.cols = gather_plan(first, light, tool_wrench)
@@ -97,6 +124,7 @@ class BatchSim:
         row[A.H_PEAK] = sim._closure_peak.ctypes.data
         row[A.H_METER] = 0 if meter is None else meter.ctypes.data
         row[A.H_METER_SIZE] = 0 if meter is None else meter.size
+        row[A.H_WATCH] = 0 if self.watch is None else self.watch[i].ctypes.data
         self.sims[i] = sim
         self.blocked[i] = ((self.meter and meter is None) or int(round(ctrl_dt / sim.timestep)) != self.nstep
                            or not np.array_equal(sim._act_ids, self.ctrl_idx))

@@ -140,17 +140,15 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         # "c" (compiled per-substep springs and motors) or "python" (the reference callbacks: no threads)
         self.backend = getattr(first.sim, "backend", "c")
         # The compiled advance (``BatchSim``): one GIL-free call per chunk of worlds, for tasks whose
-        # physics is the base class's (or the contact meter's plugin path); else ``_advance`` world by world.
-        standard = cls._advance is VSWristEnv._advance and cls._advance_physics in (
-            VSWristEnv._advance_physics, PeriodMeanForce._advance_physics)
-        # a task whose physics is its own only in some periods says which (``_plain_periods_worlds``): the compiled
-        # advance steps the others
-        self._partial = (not standard and cls._advance is VSWristEnv._advance
-                         and over_arrays(cls, "_plain_periods_worlds"))
+        # physics is the base class's, the contact meter's plugin path or a watch of every substep that the
+        # compiled advance runs (``_watch_worlds``: Throw's release); else ``_advance`` world by world.
+        self._watch = over_arrays(cls, "_watch_worlds")
+        standard = cls._advance is VSWristEnv._advance and (self._watch or cls._advance_physics in (
+            VSWristEnv._advance_physics, PeriodMeanForce._advance_physics))
         self._meter_task = issubclass(cls, PeriodMeanForce)
         self.batch_sim = BatchSim(self.num_envs, first.sim, first.ctrl_dt, first._light_sync,
                                   "tool_wrench" in first.cfg["observation"], self._meter_task,
-                                  compiled=self.backend == "c" and (standard or self._partial))
+                                  compiled=self.backend == "c" and standard, watch=self._watch)
         # CPU seconds inside the worlds' mj_step substeps (the compiled path), summed while not None (benchmarks)
         self.physics_seconds: float | None = None
         self.set_threads(threads)
@@ -288,10 +286,6 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         started: dict = {}
         reset_now = np.flatnonzero(resetting).tolist()
         native = bool(worlds) and self._native_ready(idx)
-        plain = None  # a partly compiled task's worlds whose period the compiled advance steps
-        if native and self._partial:
-            plain = type(worlds[0])._plain_periods_worlds(worlds, self._ep, ids)
-            native = bool(plain.all())
         if not native:
             self._start_resets(reset_now, started)
         if worlds and not native:
@@ -300,8 +294,6 @@ class VSWristVectorEnv(PhysicsMixin, ArrayStepMixin, VectorInfoMixin, VectorEnv)
         if native:  # the array step's _begin, then the physics, beside which the resets begin
             finished = self._native_step(worlds, idx, acts[idx], started if same_step else None,
                                          lambda: self._start_resets(reset_now, started))
-        elif plain is not None:
-            finished = self._finish(worlds, ids, self._mixed_physics(worlds, idx, plain))
         else:
             self._physics(live)
         obs = np.empty((n, self._obs_size), dtype=np.float32)

@@ -9,11 +9,10 @@ some worlds runs beside the physics of others. The compiled plugins (``model.nat
 loop-closure monitor, and Polish's and Hammer's per-substep contact meter ``vswrist.contact``) keep no global mutable
 state (theirs lives in each MjData's ``plugin_data``/``plugin_state``), and every world has its own MjModel, so worlds
 advance in parallel. Actuation latency (its first substeps on the previous references) runs inside the compiled
-call too. One task steps some periods substep by substep from Python: Throw, while it searches for the release; in a
-step where some of its worlds do (``_plain_periods_worlds``), the others go through the compiled advance on the
-library's threads while this thread advances those (``_mixed_physics``). Under the reference physics (``VSWRIST_NATIVE=0``: the
-Python callbacks) each world runs ``_advance`` instead, and each substep re-enters Python, so threads would only
-contend for the GIL: the batch then steps serially.
+call too, and so does Throw's search for the release to the substep (its watch: ``_watch_worlds`` writes each
+world's row before its chunk's physics, ``_after_watch_worlds`` reads it before its ``_finish``). Under the reference
+physics (``VSWRIST_NATIVE=0``: the Python callbacks) each world runs ``_advance`` instead, and each substep re-enters
+Python, so threads would only contend for the GIL: the batch then steps serially.
 """
 
 from __future__ import annotations
@@ -52,47 +51,6 @@ class PhysicsMixin:
         self._advance_chunk(*self._chunks[0], live)  # this thread takes the first chunk instead of waiting
         for f in futures:
             f.result()  # re-raises a world's exception here
-
-    def _mixed_physics(self, worlds: list, idx: list, plain: np.ndarray) -> np.ndarray:
-        """One period of the live worlds ``idx`` of a task whose physics is the base's only in the periods that
-        ``plain`` marks (``_plain_periods_worlds``): those worlds through the compiled advance, on the library's
-        threads where the batch has more than one, while this thread advances the others world by world
-        (``_advance``; ``mj_step`` lets the library's threads run meanwhile). Returns the gathered reads of every
-        live world (L, width): the compiled gather's rows and, for the others, the Python gather's."""
-        bsim = self.batch_sim
-        P = np.flatnonzero(plain)
-        S = np.flatnonzero(~plain).tolist()
-        wP = np.asarray(idx, dtype=np.int32)[P]
-        G = np.empty((len(idx), bsim.width))
-        status = np.zeros(len(P), dtype=np.int32)
-        seconds = None if self.physics_seconds is None else np.zeros(len(P))
-        GP = np.empty((len(P), bsim.width))
-        pool = None
-        if len(P):
-            TH = self._motor_matrix(wP.tolist(), self._ep.theta[wP])
-            if self.threads > 1:
-                pool = bsim.pool(self.threads - 1)
-                k = min(CHUNKS_PER_THREAD * self.threads, len(P))
-                bsim.submit(pool, wP, TH, status, seconds, np.linspace(0, len(P), k + 1).round().astype(np.int32),
-                            k, GP)
-            else:
-                bsim.advance(wP, TH, status, seconds, GP)
-        try:
-            for k in S:
-                worlds[k]._advance()
-        finally:
-            if pool is not None:
-                while pool.run_one() >= 0:  # this thread helps with what is left
-                    pass
-                pool.wait()  # no thread touches a world after we return
-        if len(P):
-            if seconds is not None:
-                self.physics_seconds += float(seconds.sum())
-            self._after_native([worlds[p] for p in P.tolist()], wP.tolist(), status)
-            G[P] = GP
-        if S:
-            G[S] = bsim.gather([worlds[k].sim for k in S])
-        return G
 
     # ------------------------------------------------------------------ the compiled advance
     def _attach(self, worlds) -> None:
@@ -160,17 +118,25 @@ class PhysicsMixin:
         G = np.empty((L, bsim.width))  # the gathered reads (``batch_sim.gather_plan``)
         parts: list = []  # (positions in idx, _finish's results for those worlds)
 
+        task = type(worlds[0])
+        watch = bsim.watch if self._watch else None
+
         def finish(pos: list) -> None:
             ws = [worlds[p] for p in pos]
             self._after_native(ws, [idx[p] for p in pos], status[pos])
+            if watch is not None:
+                task._after_watch_worlds(ws, self._ep, widx[pos], watch[widx[pos]])
             part = self._finish(ws, widx[pos], G[pos])
             parts.append((pos, part))
             if started is not None and self._pool is not None:  # SAME_STEP: the ended worlds reset now
                 self._start_resets([idx[pos[j]] for j in np.flatnonzero(part[2] | part[3]).tolist()], started)
 
         def begin(lo: int, hi: int) -> np.ndarray:
-            """``_begin`` of live worlds lo..hi-1: their motor references (hi - lo, 4)."""
-            return self._motor_matrix(idx[lo:hi], self._begin(worlds[lo:hi], widx[lo:hi], acts[lo:hi]))
+            """``_begin`` of live worlds lo..hi-1 (and their watches' rows): their motor references (hi - lo, 4)."""
+            TH = self._motor_matrix(idx[lo:hi], self._begin(worlds[lo:hi], widx[lo:hi], acts[lo:hi]))
+            if watch is not None:
+                watch[widx[lo:hi]] = task._watch_worlds(worlds[lo:hi], self._ep, widx[lo:hi])
+            return TH
 
         k = min(CHUNKS_PER_THREAD * self.threads, L // MIN_CHUNK_WORLDS)
         if self.threads == 1 or k < 2:

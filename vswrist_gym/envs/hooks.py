@@ -121,14 +121,19 @@ class TaskHooks:
         return {key: np.array([x[key] for x in extra]) for key in extra[0]}
 
     @classmethod
-    def _plain_periods_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
-        """For a task whose physics is its own (``_advance_physics``) only in some periods: which of ``worlds`` run
-        the coming period as the base's physics (L,) bool, which a batch then advances in one compiled call (the
-        others world by world through ``_advance``); evaluated at the period's start, after the actions are
-        checked, before any physics. A task writes it only where those periods give what its
-        ``_advance_physics`` gives, to the bit (Throw: outside the release search). The default, never called:
-        none."""
-        return np.zeros(len(worlds), dtype=bool)
+    def _watch_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        """For a task whose physics (``_advance_physics``) watches every substep for an event: the compiled
+        advance's watch of it, rows (L, ``batch_sim.WATCH_SIZE``) written by ``batch_sim.watch_rows`` from the
+        worlds' state at the period's start, after the actions; the watch then does to the substep, and to the bit,
+        what ``_advance_physics`` does (Throw: its search for the release), and ``_after_watch_worlds`` takes its
+        outcome. The default, never called: no watch."""
+        raise NotImplementedError
+
+    @classmethod
+    def _after_watch_worlds(cls, worlds: list, ep, ids, rows: np.ndarray) -> None:
+        """What the compiled advance's watch (``rows``, after the period) found, into the worlds' state, as
+        ``_advance_physics`` writes it, before the step's clock moves on."""
+        raise NotImplementedError
 
     def _success(self) -> bool:
         """Whether the episode succeeded (decided at its last step, from its history and the task's state)."""

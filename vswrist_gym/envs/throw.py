@@ -36,11 +36,13 @@ x the rigid bound, aimed within ``success_aim_error`` of the swing's plane, RUD 
 ``success_plane_error`` of the swing's until the release: a throw, not a flail.
 
 Cost: until the release is near (the ball within ``RELEASE_REACH`` of the plane in the forward swing) and after it,
-a control period is one ``mj_step`` call (``_plain_period``), which a batch runs through its compiled advance; in
-between it runs substep by substep to find the release to the millisecond, world by world
-(``_plain_periods_worlds`` tells a batch which worlds' periods are which; ``batch_physics._mixed_physics``), each
-writing the release into its row of the task state (``task_state``). The reward terms, info, success and the ``released`` observation term are written over arrays of
-worlds (``hooks``): a batch computes them once for all its worlds. The reward terms are a table over the episode's
+a control period is one ``mj_step`` call (``_plain_period``); in between it runs substep by substep to find the
+release to the millisecond (``_advance_physics``). A batch runs both in its compiled advance, on its physics
+threads: each world's release watch (``_watch_worlds``: a row of its task state, in the layout of
+``batch_sim.watch_rows``) does there what ``_advance_physics`` does here, and ``_after_watch_worlds`` writes the
+release into the task state (``task_state``) as ``_on_release`` does. The reward terms, info, success and the
+``released`` observation term are written over arrays of worlds (``hooks``): a batch computes them once for all its
+worlds. The reward terms are a table over the episode's
 control steps, written at reset and by the release, so that a step reads its row; the RUD and PS errors before the
 release come from the episode's posture-error history at its end.
 """
@@ -52,8 +54,9 @@ import math
 import mujoco
 import numpy as np
 
+from ..batch_sim import read_watch, watch_rows
 from .base import VSWristEnv
-from .episode import at_step, episode_history, held_substeps, task_field
+from .episode import at_step, episode_history, task_field
 from .ramp import fe_rate, swing_ramps
 from .shared import off_plane
 
@@ -232,26 +235,24 @@ class ThrowEnv(VSWristEnv):
         self._ep.task.t0[0] = self.data.time  # the episode's t = 0 (after the settling)
 
     # ------------------------------------------------------------------ the release, to the substep
-    # These run in a batch on its physics threads, world by world: each world reads and writes only its own row of
-    # the task state (``self._ep.task``: (1, ...) views of the batch's arrays).
+    # The single env's search (and the reference physics'); a batch's compiled advance runs the same in its watch.
     def _behind(self, c: np.ndarray, direction: np.ndarray) -> float:
         """How far (m) the ball's centre is behind the release plane (negative: past it), from ``data.xpos``: ``c``
         and ``direction`` are this world's ``c`` and ``dir`` (rows of the task state)."""
         return float((c - self.data.xpos[self._ball_body]) @ direction)
 
-    def _plain_period(self, look: bool = True) -> bool:
+    def _plain_period(self) -> bool:
         """Whether the coming period (or part of one) is plain physics, one ``mj_step`` call: after the release
-        (once the ball's mass has gone), before the forward swing, or (``look``) while the ball is farther than
-        ``RELEASE_REACH`` behind the release plane at the period's start, where it arms the release once it sees
-        the ball behind the plane (the wind-up may start past it, and a soft wrist may lag the wind-up's turn). A
-        batch asks it of each world before the physics (``_plain_periods_worlds``), this world's physics again."""
+        (once the ball's mass has gone), before the forward swing, or while the ball is farther than
+        ``RELEASE_REACH`` behind the release plane at its start, where it arms the release once it sees the ball
+        behind the plane (the wind-up may start past it, and a soft wrist may lag the wind-up's turn)."""
         st = self._ep.task
         released = st.released.item(0)
         if released and not st.mass_due.item(0):
             return True
         if self._t < st.swing_t0.item(0) - 1e-9:  # nothing of the release happens before the forward swing
             return True
-        if look and not released and not st.passed.item(0):
+        if not released and not st.passed.item(0):
             self.sim.sync_kinematics()  # xpos of the state this period starts from
             behind = self._behind(st.c[0], st.dir[0])
             if not st.armed.item(0) and behind > 0.0:
@@ -261,11 +262,24 @@ class ThrowEnv(VSWristEnv):
         return False
 
     @classmethod
-    def _plain_periods_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
-        # with actuation latency the period runs in two parts, and the ball may come within reach in the first:
-        # only what holds for the whole period (after the release, before the swing) makes such a period plain
-        held = held_substeps(ep.latency[ids], ep.step[ids]).tolist()
-        return np.array([e._plain_period(look=h == 0) for e, h in zip(worlds, held)], dtype=bool)
+    def _watch_worlds(cls, worlds: list, ep, ids) -> np.ndarray:
+        st = ep.task
+        first = worlds[0]
+        gone = 0.4 * MASS_GONE * first.tp["ball_radius"] ** 2  # _set_ball's inertia of MASS_GONE, to the bit
+        return watch_rows(st.c[ids], st.dir[ids], st.armed[ids], st.passed[ids], st.released[ids], st.mass_due[ids],
+                          st.peak_time[ids], st.peak_speed[ids], st.peak_vel[ids],
+                          ~(ep.t[ids] < st.swing_t0[ids] - 1e-9), first._ball_body, MASS_GONE, gone, RELEASE_REACH)
+
+    @classmethod
+    def _after_watch_worlds(cls, worlds: list, ep, ids, rows: np.ndarray) -> None:
+        st = ep.task
+        w = read_watch(rows)
+        st.put(ids, peak_time=w["peak_time"], peak_speed=w["peak_speed"], peak_vel=w["peak_vel"])
+        # the release's record first (``_on_release`` marks its mass due, which a later substep may have cleared)
+        for k in np.flatnonzero(w["released"] & ~st.released[ids]).tolist():
+            e = worlds[k]
+            e._on_release(e._ep.task, float(w["peak_time"][k]), w["peak_vel"][k].copy())
+        st.put(ids, armed=w["armed"], passed=w["passed"], released=w["released"], mass_due=w["due"])
 
     def _advance_physics(self, duration: float, first: bool) -> None:
         if self._plain_period():

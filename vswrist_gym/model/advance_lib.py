@@ -12,7 +12,8 @@ Per world the call does what ``VSWristEnv._advance`` does through ``WristSim`` (
 ``shared.PeriodMeanForce``), in the same order, so the numbers are the same to the bit: zero the loop-closure
 peak and the contact meter's window; with actuation latency, that many substeps on the previous motor
 references (and the divergence check); write the motor references into ``ctrl``, the period's other calls of
-``mj_step``, the divergence check on MuJoCo's NaN warnings (a diverged world is left as MuJoCo reset it,
+``mj_step`` (a Throw world with a release watch, ``H_WATCH``: its search for the release to the substep, as
+``ThrowEnv._advance_physics``), the divergence check on MuJoCo's NaN warnings (a diverged world is left as MuJoCo reset it,
 unsynced, as ``WristSim.step`` raises before its sync), then the sync: ``mj_kinematics`` + ``mj_comPos`` +
 ``mj_comVel`` (``sync_kinematics``) or ``mj_forward`` with the sensors enabled (``WristSim._forward``).
 Then, with a gather plan, it copies what the environment reads after the step (joint positions, the coupler's
@@ -40,8 +41,18 @@ from .plugin_lib import CSRC, build_library, native_build_error
 
 # columns of the handle table (one row per world, uint64): what the call needs of each world's MjModel/MjData, and
 # the world's actuation latency this period (substeps run on the previous motor references before the new ones)
-H_MODEL, H_DATA, H_PEAK, H_METER, H_METER_SIZE, H_LATENCY = range(6)
-HANDLE_COLUMNS = 6
+H_MODEL, H_DATA, H_PEAK, H_METER, H_METER_SIZE, H_LATENCY, H_WATCH = range(7)
+HANDLE_COLUMNS = 7
+
+# a world's release watch (``H_WATCH``: the address of its row of WATCH_SIZE float64, or 0: none), Throw's search
+# for the release to the substep (``envs.throw.ThrowEnv._watch_worlds``): the release plane's point c and unit
+# normal dir (m, base frame); the flags armed, passed, released, due (the ball's mass goes at the next substep
+# boundary) as 0/1; the peak's data.time (s), speed (m/s) and linear velocity (3, m/s); active (0: the whole
+# period is plain, before the forward swing); the ball's body id, its mass (kg) and principal inertia (kg m^2)
+# once it has gone, and the reach (m) behind the plane beyond which a part is plain
+(W_C, W_DIR, W_ARMED, W_PASSED, W_RELEASED, W_DUE, W_PEAK_TIME, W_PEAK_SPEED, W_PEAK_VEL, W_ACTIVE, W_BODY,
+ W_MASS_GONE, W_INERTIA_GONE, W_REACH) = (0, 3, 6, 7, 8, 9, 10, 11, 12, 15, 16, 17, 18, 19)
+WATCH_SIZE = 20
 
 # ``status`` of a world after a call
 OK, DIVERGED, MUJOCO_ERROR = 0, 1, 2
@@ -60,7 +71,11 @@ SOURCE = CSRC / "vswrist_advance.cc"
 def advance_defines() -> dict[str, str]:
     """The -D flags of the C++ source: the layouts and codes it shares with this module, defined here only."""
     names = {"HANDLE_COLUMNS": HANDLE_COLUMNS, "H_MODEL": H_MODEL, "H_DATA": H_DATA, "H_PEAK": H_PEAK,
-             "H_METER": H_METER, "H_METER_SIZE": H_METER_SIZE, "H_LATENCY": H_LATENCY, "OK": OK, "DIVERGED": DIVERGED,
+             "H_METER": H_METER, "H_METER_SIZE": H_METER_SIZE, "H_LATENCY": H_LATENCY, "H_WATCH": H_WATCH,
+             "WATCH_SIZE": WATCH_SIZE, "W_C": W_C, "W_DIR": W_DIR, "W_ARMED": W_ARMED, "W_PASSED": W_PASSED,
+             "W_RELEASED": W_RELEASED, "W_DUE": W_DUE, "W_PEAK_TIME": W_PEAK_TIME, "W_PEAK_SPEED": W_PEAK_SPEED,
+             "W_PEAK_VEL": W_PEAK_VEL, "W_ACTIVE": W_ACTIVE, "W_BODY": W_BODY, "W_MASS_GONE": W_MASS_GONE,
+             "W_INERTIA_GONE": W_INERTIA_GONE, "W_REACH": W_REACH, "OK": OK, "DIVERGED": DIVERGED,
              "MUJOCO_ERROR": MUJOCO_ERROR, "SYNC_KINEMATICS": SYNC_KINEMATICS, "SYNC_FORWARD": SYNC_FORWARD,
              "F_QPOS": F_QPOS, "F_QVEL": F_QVEL, "F_XPOS": F_XPOS, "F_XQUAT": F_XQUAT, "F_XMAT": F_XMAT,
              "F_CVEL": F_CVEL, "F_SENSOR": F_SENSOR, "F_SITE_XMAT": F_SITE_XMAT, "F_ANGLES": F_ANGLES}

@@ -19,6 +19,54 @@
 #ifndef VSWRIST_H_LATENCY
 #error "VSWRIST_H_LATENCY (handle column) is not defined: compile this file through vswrist_gym.model.advance_lib"
 #endif
+#ifndef VSWRIST_H_WATCH
+#error "VSWRIST_H_WATCH (handle column) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_WATCH_SIZE
+#error "VSWRIST_WATCH_SIZE (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_C
+#error "VSWRIST_W_C (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_DIR
+#error "VSWRIST_W_DIR (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_ARMED
+#error "VSWRIST_W_ARMED (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_PASSED
+#error "VSWRIST_W_PASSED (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_RELEASED
+#error "VSWRIST_W_RELEASED (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_DUE
+#error "VSWRIST_W_DUE (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_PEAK_TIME
+#error "VSWRIST_W_PEAK_TIME (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_PEAK_SPEED
+#error "VSWRIST_W_PEAK_SPEED (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_PEAK_VEL
+#error "VSWRIST_W_PEAK_VEL (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_ACTIVE
+#error "VSWRIST_W_ACTIVE (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_BODY
+#error "VSWRIST_W_BODY (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_MASS_GONE
+#error "VSWRIST_W_MASS_GONE (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_INERTIA_GONE
+#error "VSWRIST_W_INERTIA_GONE (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
+#ifndef VSWRIST_W_REACH
+#error "VSWRIST_W_REACH (the release watch's row layout) is not defined: compile this file through vswrist_gym.model.advance_lib"
+#endif
 #ifndef VSWRIST_H_METER_SIZE
 #error "VSWRIST_H_METER_SIZE (handle column) is not defined: compile this file through vswrist_gym.model.advance_lib"
 #endif
@@ -120,6 +168,87 @@ static void gather(const mjData* d, const uint64_t* row, const int32_t* plan, in
   }
 }
 
+static int diverged_now(const mjData* d) {
+  return d->warning[mjWARN_BADQACC].number || d->warning[mjWARN_BADQPOS].number ||
+         d->warning[mjWARN_BADQVEL].number;
+}
+
+/* How far (m) the ball's centre (body b) is behind the release plane (through w's c, normal w's dir). */
+static double behind_plane(const mjData* d, const double* w, int b) {
+  const mjtNum* x = d->xpos + 3 * b;
+  const double* c = w + VSWRIST_W_C;
+  const double* u = w + VSWRIST_W_DIR;
+  return (c[0] - x[0]) * u[0] + (c[1] - x[1]) * u[1] + (c[2] - x[2]) * u[2];
+}
+
+/* The release watch: one part of a period (n substeps) of a Throw world, with its search for the release to the
+   substep (envs/throw.py, ThrowEnv._advance_physics and _at_peak, in the same order; w: the world's watch row,
+   whose flags and peak this updates). A part is plain (n substeps, no watch) before the forward swing (w's active
+   0), after the release once the ball's mass is gone, or while the ball is farther than w's reach behind the
+   release plane at the part's start (seen after mj_kinematics; the ball behind the plane arms the release). Else
+   substep by substep: the ball's mass goes at the substep boundary after the release (due); the ball behind the
+   plane arms, then past it passes; from then on each state's speed (after mj_step, xpos and the body velocities
+   are those of the state the substep started from) is the peak, or the first slower one, which releases the ball
+   at the peak. Python reads the release from the row (ThrowEnv._after_watch_worlds). Returns whether the world
+   diverged (after the substep that did, as WristSim.step raises). */
+static int watched_part(mjModel* m, mjData* d, double* w, int n) {
+  const int b = (int)w[VSWRIST_W_BODY];
+  int armed = w[VSWRIST_W_ARMED] != 0, passed = w[VSWRIST_W_PASSED] != 0;
+  int released = w[VSWRIST_W_RELEASED] != 0, due = w[VSWRIST_W_DUE] != 0;
+  int plain = w[VSWRIST_W_ACTIVE] == 0 || (released && !due);
+  if (!plain && !released && !passed) {
+    mj_kinematics(m, d);  /* xpos of the state the part starts from */
+    const double behind = behind_plane(d, w, b);
+    if (!armed && behind > 0.0) {
+      armed = 1;
+      w[VSWRIST_W_ARMED] = 1;
+    }
+    if (behind > w[VSWRIST_W_REACH]) plain = 1;
+  }
+  if (plain) {
+    for (int s = 0; s < n; s++) mj_step(m, d);
+    return diverged_now(d);
+  }
+  const double dt = m->opt.timestep;
+  mjtNum vel[6];
+  for (int s = 0; s < n; s++) {
+    if (due) {  /* the substep boundary after the one that recognised the peak: the ball has gone */
+      due = 0;
+      w[VSWRIST_W_DUE] = 0;
+      m->body_mass[b] = w[VSWRIST_W_MASS_GONE];
+      for (int i = 0; i < 3; i++) m->body_inertia[3 * b + i] = w[VSWRIST_W_INERTIA_GONE];
+    }
+    mj_step(m, d);
+    if (diverged_now(d)) return 1;
+    if (released) continue;
+    const double behind = behind_plane(d, w, b);
+    if (!passed) {
+      if (armed && behind <= 0.0) {
+        passed = 1;
+        w[VSWRIST_W_PASSED] = 1;
+      } else {
+        if (!armed && behind > 0.0) {
+          armed = 1;
+          w[VSWRIST_W_ARMED] = 1;
+        }
+        continue;
+      }
+    }
+    mj_objectVelocity(m, d, mjOBJ_BODY, b, vel, 0);
+    const double speed = sqrt(vel[3] * vel[3] + vel[4] * vel[4] + vel[5] * vel[5]);
+    if (speed < w[VSWRIST_W_PEAK_SPEED]) {  /* slower than the peak (none yet: 0): released at the peak */
+      released = due = 1;
+      w[VSWRIST_W_RELEASED] = 1;
+      w[VSWRIST_W_DUE] = 1;
+    } else {
+      w[VSWRIST_W_PEAK_TIME] = d->time - dt;
+      w[VSWRIST_W_PEAK_SPEED] = speed;
+      for (int i = 0; i < 3; i++) w[VSWRIST_W_PEAK_VEL + i] = vel[3 + i];
+    }
+  }
+  return 0;
+}
+
 /* worlds[0..count): rows of the handle table h (stride HANDLE_COLUMNS); theta: count x 4 motor references in
    the order of worlds; ctrl_idx: the 4 ctrl addresses (the same layout in every world); status: count
    results; step_seconds: NULL, or count accumulators of the thread CPU time inside mj_step; plan/out: NULL,
@@ -148,6 +277,7 @@ extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int cou
       /* latency: the first substeps of the period run on the previous references (as VSWristEnv._advance
          runs them in two calls, the divergence checked after each) */
       const int nlat = (int)row[VSWRIST_H_LATENCY];
+      double* watch = (double*)(uintptr_t)row[VSWRIST_H_WATCH];  /* Throw's release watch, or NULL */
       *(mjtNum*)(uintptr_t)row[VSWRIST_H_PEAK] = 0;
       if (row[VSWRIST_H_METER]) memset((void*)(uintptr_t)row[VSWRIST_H_METER], 0, sizeof(mjtNum) * row[VSWRIST_H_METER_SIZE]);
       double t0 = step_seconds ? thread_seconds() : 0.0;
@@ -156,9 +286,12 @@ extern "C" int vswrist_advance(const uint64_t* h, const int32_t* worlds, int cou
         if (part == 1)
           for (int j = 0; j < 4; j++) d->ctrl[ctrl_idx[j]] = theta[4 * k + j];
         const int n = part == 0 ? nlat : nstep - nlat;
-        for (int s = 0; s < n; s++) mj_step(m, d);
-        diverged = d->warning[mjWARN_BADQACC].number || d->warning[mjWARN_BADQPOS].number ||
-                   d->warning[mjWARN_BADQVEL].number;
+        if (watch) {
+          diverged = watched_part(m, d, watch, n);
+        } else {
+          for (int s = 0; s < n; s++) mj_step(m, d);
+          diverged = diverged_now(d);
+        }
       }
       if (step_seconds) step_seconds[k] += thread_seconds() - t0;
       if (diverged) {
