@@ -232,17 +232,15 @@ class HammerEnv(PeriodMeanForce, VSWristEnv):
         """At FE angle fe[k] of each world k (its rud, PS and handle), rigid: the rigid bound (m/s, as
         ``rigid_speed``), the unit swing direction and the head centre (m, base frame), from the head's chord
         between fe - h and fe + h (h = 1e-5 rad); the analytic kinematics of all the postures in one pass."""
-        M, h = len(worlds), 1e-5
-        rud = np.array([e._rud for e in worlds])
-        ps = np.array([e._ps for e in worlds])
-        handle = np.array([e._handle for e in worlds])
-        zero = np.zeros(3 * M)
-        p = worlds[0].tool_point(np.stack([np.tile(rud, 3), np.concatenate([fe + h, fe - h, fe])], axis=-1),
-                                 np.tile(ps, 3), np.stack([np.tile(handle, 3), zero, zero], axis=-1))
-        d = p[:M] - p[M:2 * M]
+        h = 1e-5
+        head = np.zeros((len(worlds), 3))
+        head[:, 0] = [e._handle for e in worlds]
+        plus, minus, at = worlds[0].chord_points(np.array([e._rud for e in worlds]), fe,
+                                                 np.array([e._ps for e in worlds]), head, h)
+        d = plus - minus
         nd = np.linalg.norm(d, axis=-1)
         rigid = [e._fe_rate(fk) * (ndk / (2 * h)) for e, fk, ndk in zip(worlds, fe.tolist(), nd.tolist())]
-        return rigid, d / nd[:, None], p[2 * M:]
+        return rigid, d / nd[:, None], at
 
     @classmethod
     def _strike_geometry(cls, worlds: list) -> None:

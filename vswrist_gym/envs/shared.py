@@ -126,6 +126,16 @@ class SceneMixin:
         p = np.array([self.nominal_params.inertia.hand_offset, 0.0, 0.0]) + _mv(rot_x(ps), np.asarray(p_tool, float))
         return T[..., :3, 3] + _mv(T[..., :3, :3], p)
 
+    def chord_points(self, rud: np.ndarray, fe: np.ndarray, ps: np.ndarray, p_tool: np.ndarray,
+                     h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World positions (M, 3) of the tool points ``p_tool`` (M, 3) at postures (rud, fe + h), (rud, fe - h)
+        and (rud, fe) of M worlds (``rud``, ``fe``, ``ps``: (M,)), in one pass of ``tool_point`` (each as alone):
+        the chord a swing's direction and lever are taken from."""
+        M = len(fe)
+        p = self.tool_point(np.stack([np.tile(rud, 3), np.concatenate([fe + h, fe - h, fe])], axis=-1),
+                            np.tile(ps, 3), np.tile(p_tool, (3, 1)))
+        return p[:M], p[M:2 * M], p[2 * M:]
+
     def _add_tool_geom(self, spec: mujoco.MjSpec, name: str, fromto, radius: float, mass: float,
                        friction: float = 0.5) -> None:
         """A capsule on the ``tool`` body that collides with task objects only (contype 2 / conaffinity 0)."""

@@ -57,7 +57,7 @@ import numpy as np
 from ..batch_sim import read_watch, watch_rows
 from .base import VSWristEnv
 from .episode import at_step, episode_history, task_field
-from .ramp import fe_rate, swing_ramps
+from .ramp import fe_rates, swing_ramps
 from .shared import off_plane
 
 NOMINAL_BALL_MASS = 0.15   # kg, compiled in the model; each episode sets its own mass in place
@@ -199,32 +199,39 @@ class ThrowEnv(VSWristEnv):
         ramps = swing_ramps(first.ctrl, [e._rud for e in worlds], (tp["fe_start"], tp["fe_back"], tp["fe_end"]),
                             (tp["windup_speed"] * limit, tp["swing_speed"] * limit), tp["windup_start_s"],
                             tp["windup_hold_s"], first.cfg["episode_s"])
-        for e, (ts, fes) in zip(worlds, ramps):
+        fe = np.array([e._fe_release for e in worlds])
+        rigid, d, c = cls._swing_geometry(worlds, fe)
+        _, d_on, _ = cls._swing_geometry(worlds, fe + 0.1)
+        for k, (e, (ts, fes)) in enumerate(zip(worlds, ramps)):
             e._ref_t, e._ref_fe = ts, fes
             # the forward swing starts where the reference leaves fe_back
             at_back = np.flatnonzero(fes <= tp["fe_back"])
             swing_t0 = float(ts[at_back[-1]]) if at_back.size else math.inf
-            fe = e._fe_release
-            rigid, d, c = e._swing_geometry(fe)
-            n = np.cross(d, e._swing_geometry(fe + 0.1)[1])
-            e._ep.task.put(0, swing_t0=swing_t0, rigid=rigid, dir=d, c=c, normal=n / np.linalg.norm(n))
+            n = np.cross(d[k], d_on[k])
+            e._ep.task.put(0, swing_t0=swing_t0, rigid=rigid[k], dir=d[k], c=c[k], normal=n / np.linalg.norm(n))
 
-    def _fe_rate(self, fe: float, fraction: float) -> float:
-        """FE rate (rad/s) at which the fastest-turning PM motor runs at ``fraction`` x its speed limit
-        (``ramp.fe_rate``)."""
-        return fe_rate(self.ctrl, self._rud, fraction * self.nominal_params.motor.speed_limit)(fe)
-
-    def _swing_geometry(self, fe: float) -> tuple[float, np.ndarray, np.ndarray]:
-        """At FE ``fe`` (this episode's RUD, PS and ball), rigid: the rigid bound (m/s: the ball's speed when the
+    @staticmethod
+    def _swing_geometry(worlds: list, fe: np.ndarray) -> tuple[list, list, list]:
+        """At FEs ``fe`` (L,) (each world's RUD, PS and ball), rigid: the rigid bound (m/s: the ball's speed when the
         fastest motor runs at ``swing_speed`` x its limit), the unit direction in which the ball moves as FE grows
-        and the ball's centre (m, base frame), from the chord between fe - h and fe + h (h = 1e-5 rad)."""
-        h = 1e-5
-        rud = self._rud
-        u = np.array([[rud, fe + h], [rud, fe - h], [rud, fe]])
-        p = self.tool_point(u, np.full(3, self.PS), np.tile([self._ball_L, 0.0, 0.0], (3, 1)))
-        d = p[0] - p[1]
-        nd = float(np.linalg.norm(d))
-        return self._fe_rate(fe, self.tp["swing_speed"]) * nd / (2 * h), d / nd, p[2]
+        and the ball's centre (m, base frame), from the chord between fe - h and fe + h (h = 1e-5 rad); the
+        kinematics over arrays of worlds (each row as alone), each world's norms on its own."""
+        first = worlds[0]
+        L, h = len(worlds), 1e-5
+        rud = np.array([e._rud for e in worlds])
+        ball = np.zeros((L, 3))
+        ball[:, 0] = [e._ball_L for e in worlds]
+        plus, minus, at = first.chord_points(rud, fe, np.full(L, first.PS), ball, h)
+        # every world's controller has the nominal parameters (randomisation rebuilds the simulator only)
+        rates = fe_rates(first.ctrl, rud, first.tp["swing_speed"] * first.nominal_params.motor.speed_limit)(
+            fe, np.arange(L)).tolist()
+        rigid, direction = [], []
+        for k in range(L):
+            d = plus[k] - minus[k]
+            nd = float(np.linalg.norm(d))
+            rigid.append(rates[k] * nd / (2 * h))
+            direction.append(d / nd)
+        return rigid, direction, list(at)
 
     def _reference(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=float)
