@@ -217,7 +217,8 @@ def test_swings_integrated_over_arrays_are_the_scalar_swings_to_the_bit(env_id):
         assert alone._rud == e._rud
         tp = alone.tp
         if throw:
-            rates = (lambda fe: alone._fe_rate(fe, tp["windup_speed"]), lambda fe: alone._fe_rate(fe, tp["swing_speed"]))
+            limit = alone.nominal_params.motor.speed_limit
+            rates = tuple(ramp.fe_rate(alone.ctrl, alone._rud, tp[k] * limit) for k in ("windup_speed", "swing_speed"))
             want = ramp.ramp_through((tp["fe_start"], tp["fe_back"], tp["fe_end"]), rates, tp["windup_start_s"],
                                      tp["windup_hold_s"], alone.cfg["episode_s"])
             got = ((e._ref_t, e._ref_fe), (alone._ref_t, alone._ref_fe))
