@@ -57,6 +57,32 @@ def score_checkpoint(run: Path, env_id: str, folder: Path) -> np.ndarray:
     return out
 
 
+def train_and_score(env_id: str, algo: str, c: float, seed: int, base: np.ndarray, rule_gain: float, budget: int,
+                    every: int, runs: Path, slack: int) -> dict:
+    """One stiffness-track run of ``algo`` (trained unless its model is there) and its checkpoints every ``every``
+    steps scored against the constant's returns ``base``: {step: {"gain", "share"}}. ``slack``: how many steps a
+    scheduled checkpoint may come after its target (a rollout's length)."""
+    run = runs / env_id.split("/")[1] / f"seed{seed}"
+    entry = track_entry(env_id, algo, "stiffness", c, budget=budget)
+    entry["vswrist"][env_id].update(checkpoint_freq=every, keep_checkpoints=100)
+    run.parent.mkdir(parents=True, exist_ok=True)
+    cfg = run.parent / "entry.yaml"
+    cfg.write_text(yaml.safe_dump(entry, sort_keys=False))
+    if not (run / "model.zip").is_file():
+        train(env_id, algo, run, config=cfg, timesteps=budget, seed=seed, progress=False, log=lambda *a: None)
+    rows = {}
+    saved = {checkpoint_step(f): f for f in checkpoints(run)}
+    for target in range(every, budget + 1, every):
+        # the scheduled checkpoint: the first at or after the target (the others were saved on the wall-clock timer)
+        step = min((s for s in saved if s >= target), default=None)
+        if step is None or step - target > slack:
+            raise SystemExit(f"{run}: no checkpoint at {target} steps (saved: {sorted(saved)})")
+        gain = float((score_checkpoint(run, env_id, saved[step]) - base).mean())
+        rows[str(target)] = {"gain": gain, "share": gain / rule_gain}
+        print(f"{env_id} seed {seed} step {target} ({step}): gain {gain:+.2f}, share {gain / rule_gain:+.2f}", flush=True)
+    return rows
+
+
 def main() -> int:
     limit_threads(1)
     path = HERE / "results.json"
@@ -72,27 +98,8 @@ def main() -> int:
         for seed in SEEDS:
             if str(seed) in task["seeds"]:
                 continue
-            run = RUNS / env_id.split("/")[1] / f"seed{seed}"
-            entry = track_entry(env_id, "ppo", "stiffness", c, budget=BUDGET)
-            entry["vswrist"][env_id].update(checkpoint_freq=EVERY, keep_checkpoints=100)
-            run.parent.mkdir(parents=True, exist_ok=True)
-            cfg = run.parent / "entry.yaml"
-            cfg.write_text(yaml.safe_dump(entry, sort_keys=False))
-            if not (run / "model.zip").is_file():
-                train(env_id, "ppo", run, config=cfg, timesteps=BUDGET, seed=seed, progress=False, log=lambda *a: None)
-            rows = {}
-            saved = {checkpoint_step(f): f for f in checkpoints(run)}
-            for target in range(EVERY, BUDGET + 1, EVERY):
-                # the scheduled checkpoint: the first rollout boundary at or after the target (the others were
-                # saved on the wall-clock timer)
-                step = min((s for s in saved if s >= target), default=None)
-                if step is None or step - target > 4096:
-                    raise SystemExit(f"{run}: no checkpoint at {target} steps (saved: {sorted(saved)})")
-                folder = saved[step]
-                gain = float((score_checkpoint(run, env_id, folder) - base).mean())
-                rows[str(target)] = {"gain": gain, "share": gain / rule_gain}
-                print(f"{env_id} seed {seed} step {target} ({step}): gain {gain:+.2f}, share {gain / rule_gain:+.2f}", flush=True)
-            task["seeds"][str(seed)] = rows
+            task["seeds"][str(seed)] = train_and_score(env_id, "ppo", c, seed, base, rule_gain, BUDGET, EVERY, RUNS,
+                                                       slack=4096)
             path.write_text(json.dumps(doc, indent=1) + "\n")
     print("\n| task | steps | share per seed | mean share |\n|---|---|---|---|")
     for env_id, task in doc.items():

@@ -13,20 +13,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 import vswrist_gym  # noqa: F401
-from vswrist_gym.agents.checkpoints import checkpoint_step, checkpoints
 from vswrist_gym.agents.procs import limit_threads
 from vswrist_gym.agents.protocol import TUNING_TRAIN_SEEDS
-from vswrist_gym.agents.train import train
-from vswrist_gym.tools.benchmark import track_entry
 from vswrist_gym.tools.gate import constant_agent
 
 HERE = Path(__file__).resolve().parent
 _spec = importlib.util.spec_from_file_location("budget_gap_run", HERE.parent / "budget_gap" / "run.py")
 scoring = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(scoring)  # gate_selection, returns, score_checkpoint: the PPO study's, unchanged
+_spec.loader.exec_module(scoring)  # gate_selection, returns, train_and_score: the PPO study's, unchanged
 
 TASKS = ("VSWrist/Throw-v0", "VSWrist/Hammer-v1")
 SEEDS = TUNING_TRAIN_SEEDS[4:7]
@@ -50,25 +46,8 @@ def run_task(env_id: str) -> None:
     for seed in SEEDS:
         if str(seed) in task["seeds"]:
             continue
-        run = RUNS / env_id.split("/")[1] / f"seed{seed}"
-        entry = track_entry(env_id, "sac", "stiffness", c, budget=BUDGET)
-        entry["vswrist"][env_id].update(checkpoint_freq=EVERY, keep_checkpoints=100)
-        run.parent.mkdir(parents=True, exist_ok=True)
-        cfg = run.parent / "entry.yaml"
-        cfg.write_text(yaml.safe_dump(entry, sort_keys=False))
-        if not (run / "model.zip").is_file():
-            train(env_id, "sac", run, config=cfg, timesteps=BUDGET, seed=seed, progress=False, log=lambda *a: None)
-        saved = {checkpoint_step(f): f for f in checkpoints(run)}
-        rows = {}
-        for target in range(EVERY, BUDGET + 1, EVERY):
-            # the scheduled checkpoint: the first at or after the target (others were saved on the wall-clock timer)
-            step = min((s for s in saved if s >= target), default=None)
-            if step is None or step - target > 64:
-                raise SystemExit(f"{run}: no checkpoint at {target} steps (saved: {sorted(saved)})")
-            gain = float((scoring.score_checkpoint(run, env_id, saved[step]) - base).mean())
-            rows[str(target)] = {"gain": gain, "share": gain / rule_gain}
-            print(f"{env_id} seed {seed} step {target}: gain {gain:+.2f}, share {gain / rule_gain:+.2f}", flush=True)
-        task["seeds"][str(seed)] = rows
+        task["seeds"][str(seed)] = scoring.train_and_score(env_id, "sac", c, seed, base, rule_gain, BUDGET, EVERY, RUNS,
+                                                           slack=64)
         path.write_text(json.dumps(task, indent=1) + "\n")
 
 
