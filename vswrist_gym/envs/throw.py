@@ -42,9 +42,9 @@ threads: each world's release watch (``_watch_worlds``: a row of its task state,
 ``batch_sim.watch_rows``) does there what ``_advance_physics`` does here, and ``_after_watch_worlds`` writes the
 release into the task state (``task_state``) as ``_on_release`` does. The reward terms, info, success and the
 ``released`` observation term are written over arrays of worlds (``hooks``): a batch computes them once for all its
-worlds. The reward terms are a table over the episode's
-control steps, written at reset and by the release, so that a step reads its row; the RUD and PS errors before the
-release come from the episode's posture-error history at its end.
+worlds. The reward terms are a table over the episode's control steps, written at reset and by the release, so that
+a step reads its row; the RUD and PS errors before the release come from the episode's posture-error history at its
+end.
 """
 
 from __future__ import annotations
