@@ -9,7 +9,8 @@ change what the Python does.
 
 Prints, per task, the median over ``--pairs`` alternating pairs: the Python per step after the physics and warm,
 their ratio, the advance per step, and env/phys (the step over the time inside ``mj_step``) as measured and as it
-would be with the warm Python."""
+would be with the warm Python; and, in the same run, the floor (``vswrist bench-env``'s: the compiled advance
+alone, no Python) and both env/phys over it, the figure of the batch's target (<= 1.10)."""
 from __future__ import annotations
 
 import argparse
@@ -22,6 +23,7 @@ import vswrist_gym  # noqa: F401
 from vswrist_gym import LATEST
 from vswrist_gym import batch_sim as BS
 from vswrist_gym.envs.batch import VSWristVectorEnv
+from vswrist_gym.tools.bench import bench_physics_scaling
 
 _real_advance = BS.BatchSim.advance
 _state = {"replay": False, "G": None, "status": None, "advance": 0.0}
@@ -71,19 +73,23 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if hasattr(os, "sched_setaffinity") and (os.cpu_count() or 1) > 1:
         os.sched_setaffinity(0, {1})
-    BS.BatchSim.advance = _advance
     print(f"{args.worlds} worlds, 1 thread, {args.steps} steps, median of {args.pairs} pairs; ms per step")
     print(f"{'task':12s} {'py after':>9s} {'py warm':>8s} {'ratio':>6s} {'advance':>8s} {'env/phys':>9s} "
-          f"{'warm env/phys':>14s}")
+          f"{'warm':>6s} {'floor':>6s} {'env/floor':>10s} {'warm':>6s}")
     for name in args.tasks:
         env_id = LATEST.get(name, name)
+        BS.BatchSim.advance = _real_advance
+        _, floor = bench_physics_scaling(name, args.worlds, 64 * args.worlds, 2)
+        BS.BatchSim.advance = _advance
         cold, warm, adv, mj = [], [], [], []
         for _ in range(args.pairs):
             c, a, m = run(env_id, args.worlds, args.steps, replay=False)
             w, _, _ = run(env_id, args.worlds, args.steps, replay=True)
             cold.append(c), warm.append(w), adv.append(a), mj.append(m)
         c, w, a, m = (float(np.median(x)) for x in (cold, warm, adv, mj))
-        print(f"{name:12s} {c:9.3f} {w:8.3f} {c / w:6.2f} {a:8.2f} {(a + c) / m:9.3f} {(a + w) / m:14.3f}")
+        after, warm = (a + c) / m, (a + w) / m
+        print(f"{name:12s} {c:9.3f} {w:8.3f} {c / w:6.2f} {a:8.2f} {after:9.3f} {warm:6.3f} {floor:6.3f} "
+              f"{after / floor:10.3f} {warm / floor:6.3f}")
     return 0
 
 
