@@ -2,8 +2,8 @@
 advance, measured twice on one thread pinned to CPU 1: after the real physics (the worlds' MjData have just
 streamed through the caches), and with the physics replaced by a copy of its last output (the step's Python then
 finds its code, NumPy's internals and its arrays still cached). Both runs take the same actions and the same
-steps (no resets in the window); the second run's physics is a memcpy, so its observations repeat, which does not
-change what the Python does.
+steps (no resets in the window); the second run's physics is a memcpy, so its observations repeat and an event
+the physics would have found (Throw's release) is not found: the Python's work is nearly, not exactly, the same.
 
     python experiments/batched_speed/cache_refill.py [--tasks LoadHold Hammer Throw] [--worlds 64] [--steps 40]
 
