@@ -10,7 +10,9 @@ the physics would have found (Throw's release) is not found: the Python's work i
 Prints, per task, the median over ``--pairs`` alternating pairs: the Python per step after the physics and warm,
 their ratio, the advance per step, and env/phys (the step over the time inside ``mj_step``) as measured and as it
 would be with the warm Python; and, in the same run, the floor (``vswrist bench-env``'s: the compiled advance
-alone, no Python) and both env/phys over it, the figure of the batch's target (<= 1.10)."""
+alone, no Python) and both env/phys over it, the figure of the batch's target (<= 1.10). Last, the same effect
+in isolation: four small array calls (``_after_native``'s status tests on 64 worlds) timed warm and right after a
+sweep of 64 MB."""
 from __future__ import annotations
 
 import argparse
@@ -64,6 +66,25 @@ def run(env_id: str, worlds: int, steps: int, replay: bool) -> tuple[float, floa
     return 1e3 * (dt - _state["advance"]) / steps, 1e3 * _state["advance"] / steps, 1e3 * mj / steps
 
 
+def isolated(reps: int = 200) -> tuple[float, float]:
+    """Median microseconds of four small array calls, warm and right after a 64 MB sweep."""
+    status = np.zeros(64, dtype=np.int32)
+    big = np.ones(8_000_000)
+
+    def calls() -> float:
+        t0 = time.perf_counter()
+        np.flatnonzero((status != 0) & (status != 2)).tolist()
+        _ = status == 2
+        return time.perf_counter() - t0
+
+    warm = [calls() for _ in range(reps)]
+    cold = []
+    for _ in range(reps // 4):
+        big *= 1.0
+        cold.append(calls())
+    return 1e6 * float(np.median(warm)), 1e6 * float(np.median(cold))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tasks", nargs="+", default=["LoadHold", "Hammer", "Throw"])
@@ -90,6 +111,8 @@ def main(argv=None) -> int:
         after, warm = (a + c) / m, (a + w) / m
         print(f"{name:12s} {c:9.3f} {w:8.3f} {c / w:6.2f} {a:8.2f} {after:9.3f} {warm:6.3f} {floor:6.3f} "
               f"{after / floor:10.3f} {warm / floor:6.3f}")
+    w, c = isolated()
+    print(f"four small array calls: {w:.1f} us warm, {c:.1f} us right after a 64 MB sweep")
     return 0
 
 
