@@ -1,10 +1,11 @@
-"""A one-change-at-a-time hyperparameter search for a task's stiffness-track PPO on tuning seeds only.
-Protocols: NOTES.md here (Throw-v0), ../hammer_tuning/NOTES.md (Hammer-v1) and ../throw_tuning2/NOTES.md (Throw-v0's
-second round), each written before its first run.
+"""A one-change-at-a-time hyperparameter search for a task's stiffness-track PPO or SAC on tuning seeds only.
+Protocols: NOTES.md here (Throw-v0), ../hammer_tuning/NOTES.md (Hammer-v1), ../throw_tuning2/NOTES.md (Throw-v0's
+second round) and ../sac_tuning/NOTES.md (SAC, both headline tasks), each written before its first run.
 
     python experiments/throw_tuning/search.py
     python experiments/throw_tuning/search.py --task VSWrist/Hammer-v1 --study experiments/hammer_tuning
     python experiments/throw_tuning/search.py --study experiments/throw_tuning2 --seeds 1002 1003
+    python experiments/throw_tuning/search.py --algo sac --study experiments/sac_tuning/Throw-v0 --seeds 1004 1005
 """
 
 import argparse
@@ -12,6 +13,7 @@ import copy
 import json
 import re
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -53,29 +55,43 @@ def candidates(env_id: str, first_throw_round: bool = False) -> dict:
             "clip0.3": {"clip_range": 0.3}, "net128": {"policy_kwargs": policy(base, width=128)}}
 
 
-def config(env_id: str, change: dict) -> dict:
-    doc = copy.deepcopy(track_entry(env_id, "ppo", "stiffness", 0.0, budget=BUDGET))
+def sac_candidates(env_id: str) -> dict:
+    """One change each from the packaged SAC entry of ``env_id``: the set ../sac_tuning/NOTES.md registered."""
+    base = track_entry(env_id, "sac", "stiffness", 0.0)[env_id]
+    steps = int(base["n_timesteps"])
+    return {"base": {}, "lr1e-3": {"learning_rate": 1.0e-3}, "ent_auto": {"ent_coef": "auto"},
+            "sde": {"use_sde": True, "policy_kwargs": base["policy_kwargs"].replace("dict(", "dict(log_std_init=-3, ")},
+            "samples4x": {"n_timesteps": 4 * steps, "train_freq": 4 * int(base["train_freq"])},
+            "net128": {"policy_kwargs": base["policy_kwargs"].replace("[64, 64]", "[128, 128]")}}
+
+
+def config(env_id: str, algo: str, change: dict) -> dict:
+    doc = copy.deepcopy(track_entry(env_id, algo, "stiffness", 0.0, budget=BUDGET if algo == "ppo" else None))
     doc[env_id].update(change)
     return doc
 
 
-def score(env_id: str, runs: Path, name: str, change: dict, seed: int) -> float:
+def score(env_id: str, algo: str, runs: Path, name: str, change: dict, seed: int) -> tuple[float, float]:
+    """The tuning score of one run (trained here unless it is complete) and its wall time in seconds."""
     run = runs / name / f"seed{seed}"
+    start = time.perf_counter()
     if not (run / "model.zip").is_file():
-        cfg = runs / name / "ppo.yaml"
+        cfg = runs / name / f"{algo}.yaml"
         cfg.parent.mkdir(parents=True, exist_ok=True)
-        cfg.write_text(yaml.safe_dump(config(env_id, change), sort_keys=False))
+        doc = config(env_id, algo, change)
+        cfg.write_text(yaml.safe_dump(doc, sort_keys=False))
         resume = (run / "config.yaml").is_file()
-        train(env_id, "ppo", run, config=None if resume else cfg, timesteps=BUDGET, seed=seed, resume=resume,
-              progress=False)
+        train(env_id, algo, run, config=None if resume else cfg, timesteps=int(doc[env_id]["n_timesteps"]),
+              seed=seed, resume=resume, progress=False)
     spec = AgentSpec(str(run), checkpoint="final")
     records, _ = evaluate(env_id, spec.make, TUNING_EVAL_SEEDS, 10, env_kwargs=spec.env_kwargs)
-    return float(np.mean([r["return"] for r in records]))
+    return float(np.mean([r["return"] for r in records])), time.perf_counter() - start
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--task", default="VSWrist/Throw-v0")
+    ap.add_argument("--algo", choices=("ppo", "sac"), default="ppo")
     ap.add_argument("--study", type=Path, default=HERE, help="the study's folder (results.json goes there)")
     ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS), help="training seeds (tuning seeds only)")
     args = ap.parse_args()
@@ -84,17 +100,25 @@ def main() -> int:
         ap.error(f"--seeds must be tuning training seeds {TUNING_TRAIN_SEEDS[0]}-{TUNING_TRAIN_SEEDS[-1]}, got {bad}")
     seeds = args.seeds
     limit_threads(1)
-    CANDIDATES = candidates(args.task, args.task == "VSWrist/Throw-v0" and args.study.resolve() == HERE)
-    runs = Path("runs") / args.study.resolve().name
+    if args.algo == "sac":
+        CANDIDATES = sac_candidates(args.task)
+        study = args.study.resolve()
+        runs = Path("runs") / f"{study.parent.name}_{study.name}"
+    else:
+        CANDIDATES = candidates(args.task, args.task == "VSWrist/Throw-v0" and args.study.resolve() == HERE)
+        runs = Path("runs") / args.study.resolve().name
     out = args.study / "results.json"
     doc = json.loads(out.read_text()) if out.is_file() else {}
     for name in CANDIDATES:
         for seed in seeds:
             key = f"{name}/{seed}"
             if key not in doc:
-                doc[key] = score(args.task, runs, name, CANDIDATES[name], seed)
+                value, seconds = score(args.task, args.algo, runs, name, CANDIDATES[name], seed)
+                doc[key] = value
+                if args.algo == "sac":  # the PPO studies' files hold the scores alone
+                    doc[f"seconds/{key}"] = round(seconds, 1)
                 out.write_text(json.dumps(doc, indent=1))
-                print(f"{key}: {doc[key]:.2f}", flush=True)
+                print(f"{key}: {doc[key]:.2f} ({seconds:.0f} s)", flush=True)
     means = {n: float(np.mean([doc[f"{n}/{s}"] for s in seeds])) for n in CANDIDATES}
     best = max(means, key=lambda n: (means[n], n == "base"))
     print("| candidate | change | tuning return, seeds " + ", ".join(map(str, seeds)) + " | mean |\n|---|---|---|---|")
