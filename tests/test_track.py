@@ -37,7 +37,7 @@ def _interval(x: np.ndarray) -> tuple[float, float, float]:
 
 def _seed_means(folder: Path, row: dict) -> dict[str, np.ndarray]:
     """Per agent folder name, the per-seed mean returns: from the episode files, or where a folder keeps only its
-    summary (experiments/main_job), from the summary's per-seed means."""
+    summary (experiments/polish_compare), from the summary's per-seed means."""
     if (folder / "eval").is_dir():
         names = [n.lower().replace("analytic:", "analytic_") for n in
                  json.loads((folder / "summary.json").read_text())["rows"]]  # the agents the table compares

@@ -583,3 +583,28 @@ def test_train_on_the_stiffness_track_and_refuse_a_mixed_resume(tmp_path):
                   "--out", out)
     assert res.returncode == 2 and "stiffness-track run, not full" in res.stderr
     assert res.stderr.strip().count("\n") == 0
+
+
+@pytest.mark.parametrize("env_id, middle", [("VSWrist/Throw-v0", "reward"), ("VSWrist/Polish-v1", "contact_force")])
+def test_traces_show_the_contact_force_only_where_the_task_has_contact(env_id, middle):
+    """`traces.png`'s middle panel: the contact force where an episode touches something (Polish presses its tool
+    on a surface), the step reward where the force is 0 throughout (Throw has nothing to touch)."""
+    import gymnasium as gym
+
+    from vswrist_gym.agents.compare import trace_signals
+
+    env = gym.make(env_id, action_mode="residual")  # a zero action: the analytic baseline at the task's constant
+    env.reset(seed=0)
+    forces, rewards = [], []
+    for _ in range(env.unwrapped.episode_steps):
+        _, r, term, trunc, info = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        forces.append(float(info["contact_force"]))
+        rewards.append(float(r))
+        if term or trunc:
+            break
+    env.close()
+    assert (max(forces) > 0.0) == (middle == "contact_force")
+    trace = {"time": list(range(len(forces))), "posture_error": forces, "contact_force": forces, "lam": forces,
+             "reward": rewards}
+    keys = [key for key, _ in trace_signals({"agent": trace, "absent": None})]
+    assert keys == ["posture_error", middle, "lam"]

@@ -3,7 +3,7 @@
     python3 experiments/aggregate/summarize.py [DIR ...]
         (default: experiments/every_task, experiments/long, experiments/long200, experiments/ablation, experiments/ablation_stiffness,
          experiments/long_stiffness, experiments/sac, experiments/sac_tuned, experiments/sac_hammer,
-         experiments/sac_hammer_posture_only, experiments/main_job)
+         experiments/sac_hammer_posture_only, experiments/polish_compare, experiments/main_job)
 
 For each task and learned agent: its return and success (mean and Student-t 95 % CI over seeds), the best
 fixed-stiffness analytic baseline (highest mean return) with the same, the paired difference in return on the
@@ -51,7 +51,7 @@ def table(result_dir: Path) -> str:
     lines = ["| task | agent | steps/seed | seeds x episodes | training (2 cores) | return | success | "
              "best fixed baseline | its return | its success | paired difference | verdict |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    if (result_dir / "summary.json").is_file():  # one compare output directory (e.g. experiments/main_job)
+    if (result_dir / "summary.json").is_file():  # one compare output directory (e.g. experiments/polish_compare)
         found = {result_dir.name: result_dir / "summary.json"}
     else:  # one sub-directory per task
         found = {p.parent.name: p for p in result_dir.glob("*/summary.json") if p.parent.name in TASK_ORDER}
@@ -65,7 +65,7 @@ def table(result_dir: Path) -> str:
 
 
 def main(argv: list[str]) -> int:
-    defaults = [Path(f"experiments/{d}") for d in ("every_task", "long", "long200", "ablation", "ablation_stiffness", "long_stiffness", "sac", "sac_tuned", "sac_hammer", "sac_hammer_posture_only", "main_job")]
+    defaults = [Path(f"experiments/{d}") for d in ("every_task", "long", "long200", "ablation", "ablation_stiffness", "long_stiffness", "sac", "sac_tuned", "sac_hammer", "sac_hammer_posture_only", "polish_compare", "main_job")]
     dirs = [Path(d) for d in argv] or [p for p in defaults if p.is_dir()]
     for d in dirs:
         print(f"{d}:\n\n{table(d)}\n")

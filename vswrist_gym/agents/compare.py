@@ -254,6 +254,15 @@ def plot_learning_curves(path: Path, runs: dict[str, list[Path]], baseline: tupl
     plt.close(fig)
 
 
+def trace_signals(traces: dict[str, dict]) -> tuple:
+    """The three panels of ``traces.png`` (trace key, axis label): posture error, the contact force, and the
+    internal torque; on a task without contact (Throw), whose contact force is 0 throughout, the step reward in
+    place of the force, so that the panel shows when the task pays."""
+    touched = any(tr is not None and any(f != 0.0 for f in tr["contact_force"]) for tr in traces.values())
+    middle = ("contact_force", "contact force (N)") if touched else ("reward", "step reward")
+    return (("posture_error", "posture error (rad)"), middle, ("lam", "internal torque lambda (N m)"))
+
+
 def plot_traces(path: Path, traces: dict[str, dict], title: str, highlight: str | None = None):
     import matplotlib
 
@@ -261,8 +270,7 @@ def plot_traces(path: Path, traces: dict[str, dict], title: str, highlight: str 
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(3, 1, figsize=(6.4, 6.4), sharex=True)
-    signals = (("posture_error", "posture error (rad)"), ("contact_force", "contact force (N)"),
-               ("lam", "internal torque lambda (N m)"))
+    signals = trace_signals(traces)
     for label, tr in traces.items():
         if tr is None:
             continue

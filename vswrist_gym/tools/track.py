@@ -22,7 +22,7 @@ Track file keys (every other key is an error naming it)::
     out: experiments/tracks/track_stiffness.md          # the table (markdown); a JSON twin is written beside it
     runs:
       - {task: Polish, sweep: experiments/tuned_stiffness/tuned_stiffness.yaml, agent: ppo}
-      - {task: Polish, dir: experiments/main_job, command: "vswrist compare --task Polish --out experiments/main_job",
+      - {task: Polish, dir: experiments/polish_compare, command: "vswrist compare --task Polish --out experiments/polish_compare",
          agent: sac}
       - {task: Drill, sweep: FILE, agent: ppo, ablation: POSTURE_ONLY_SWEEP}   # full track only
 """
