@@ -114,3 +114,26 @@ def test_a_task_folder_is_not_replaced_by_another_run_of_the_task(tmp_path):
     s = agg.load_summaries(tmp_path)
     assert agg.normalised(s["Polish"], "PPO", 10.0) == pytest.approx({0: 1.0, 1: 1.0})
     assert set(agg.load_summaries(tmp_path / "main_job")) == {"Polish"}
+
+
+def test_probability_of_improvement_is_rliables_to_the_bit():
+    """The pair count equals rliable's rank-based Mann-Whitney statistic exactly, ties and identical runs included,
+    and so does every bootstrap interval drawn with the same seed."""
+    from rliable import library, metrics
+
+    rng = np.random.default_rng(3)
+    cases = [(rng.normal(size=(10, 2)), rng.normal(size=(10, 2))),
+             (np.round(rng.normal(size=(10, 3)), 1), np.round(rng.normal(size=(7, 3)), 1)),  # many ties
+             (np.zeros((10, 2)), np.round(rng.normal(size=(10, 2)), 0)),  # the best constant's scores: all 0
+             ]
+    x = rng.normal(size=(10, 2))
+    cases.append((x, x.copy()))  # identical runs: 0.5
+    for a, b in cases:
+        assert agg.probability_of_improvement(a, b) == metrics.probability_of_improvement(a, b)
+        assert agg.probability_of_improvement(b, a) == metrics.probability_of_improvement(b, a)
+    a, b = cases[1]
+    np.random.seed(0)
+    mine = library.get_interval_estimates({"x": (a, b)}, agg.probability_of_improvement, reps=200)
+    np.random.seed(0)
+    theirs = library.get_interval_estimates({"x": (a, b)}, metrics.probability_of_improvement, reps=200)
+    assert np.array_equal(mine[0]["x"], theirs[0]["x"]) and np.array_equal(mine[1]["x"], theirs[1]["x"])
