@@ -258,8 +258,10 @@ def trace_signals(traces: dict[str, dict]) -> tuple:
     """The three panels of ``traces.png`` (trace key, axis label): posture error, the contact force, and the
     internal torque; on a task without contact (Throw), whose contact force is 0 throughout, the step reward in
     place of the force, so that the panel shows when the task pays."""
-    touched = any(tr is not None and any(f != 0.0 for f in tr["contact_force"]) for tr in traces.values())
-    middle = ("contact_force", "contact force (N)") if touched else ("reward", "step reward")
+    shown = [tr for tr in traces.values() if tr is not None]
+    touched = any(any(f != 0.0 for f in tr["contact_force"]) for tr in shown)
+    rewards = all("reward" in tr for tr in shown)  # traces written before they held the reward keep the force
+    middle = ("reward", "step reward") if rewards and not touched else ("contact_force", "contact force (N)")
     return (("posture_error", "posture error (rad)"), middle, ("lam", "internal torque lambda (N m)"))
 
 
