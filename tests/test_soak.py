@@ -82,11 +82,23 @@ def test_the_soak_counts_a_warning_and_a_non_finite_observation(monkeypatch):
 
 def test_rss_follows_a_large_allocation():
     """The memory probe reads resident memory now: touching 64 MiB raises it by about that much."""
-    before = soak.rss_bytes()
-    block = np.ones(64 * MIB, dtype=np.uint8)  # np.ones writes every page, so all of it is resident
-    grown = soak.rss_bytes() - before
-    del block
-    assert 60 * MIB <= grown <= 80 * MIB, grown / MIB
+    import mmap
+
+    # fresh anonymous pages, none resident until written: a NumPy array could reuse pages that the allocator kept
+    # resident after an earlier test freed them, and then resident memory grows by less than the array
+    def touch() -> int:
+        block = mmap.mmap(-1, 64 * MIB)
+        before = soak.rss_bytes()
+        view = np.frombuffer(block, dtype=np.uint8)
+        view[:] = 1  # writes every page
+        grown = soak.rss_bytes() - before
+        del view
+        block.close()
+        return grown
+
+    # up to three tries: another thread of the test process may free memory during one of them
+    grown = [touch() for _ in range(3)]
+    assert any(60 * MIB <= g <= 80 * MIB for g in grown), [g / MIB for g in grown]
 
 
 @pytest.mark.parametrize("kwargs, field", [({"steps": 0}, "steps"), ({"steps": 1.5}, "steps"),
